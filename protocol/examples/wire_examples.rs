@@ -1,0 +1,78 @@
+//! Prints one example message per direction in both encodings (hex and JSON), exactly as they
+//! appear in PROTOCOL.md. Run: `cargo run -p impact-protocol --example wire_examples`.
+
+use impact_protocol::*;
+
+fn hex(bytes: &[u8]) -> String {
+    let lines: Vec<String> = bytes
+        .chunks(16)
+        .map(|c| {
+            c.iter()
+                .map(|b| format!("{b:02x}"))
+                .collect::<Vec<_>>()
+                .join(" ")
+        })
+        .collect();
+    lines.join("\n")
+}
+
+fn main() {
+    let input = ClientMessage::Input(ClientInput {
+        client: ClientId(7),
+        seq: 42,
+        tick: Tick(1200),
+        actions: vec![
+            Action::SetVelocity {
+                entity: EntityId(19),
+                velocity: [1.5, 0.0, -2.0],
+            },
+            Action::FireRay {
+                shooter: EntityId(19),
+                origin: [0.0, 1.0, 0.0],
+                direction: [1.0, 0.0, 0.0],
+                max_distance_m: 50.0,
+            },
+        ],
+    });
+    let events = ServerMessage::Events(EventBatch {
+        tick: Tick(1200),
+        revision: 0,
+        events: vec![CollisionEvent {
+            tick: Tick(1200),
+            toi: 0.375,
+            a: EntityId(3),
+            b: EntityId(19),
+            point: [10.25, 0.5, -4.0],
+            normal: [1.0, 0.0, 0.0],
+            depth_m: 0.0,
+            closing_speed_mps: 3.5,
+            phase: Phase::Begin,
+            response: Response::Bounce,
+            status: EventStatus::Provisional,
+        }],
+    });
+    let reject = ServerMessage::Reject(InputReject {
+        client: ClientId(7),
+        seq: 43,
+        tick: Tick(1000),
+        reason: RejectReason::Stale,
+        detail: "tick 1000 is older than the window (oldest 1184)".into(),
+        oldest_tick: Some(Tick(1184)),
+        newest_tick: None,
+    });
+    print("client -> server: input", &input);
+    print("server -> client: events", &events);
+    print("server -> client: reject", &reject);
+}
+
+fn print<T: serde::Serialize + Validate>(title: &str, msg: &T) {
+    let mp = encode(msg, Encoding::MsgPack).expect("example encodes");
+    let js = encode(msg, Encoding::Json).expect("example encodes");
+    let json = String::from_utf8(js).expect("json is UTF-8");
+    println!(
+        "### {title}\n\nMessagePack, {} bytes:\n\n```hex\n{}\n```\n\nJSON:\n\n```json\n{}\n```\n",
+        mp.len(),
+        hex(&mp),
+        json
+    );
+}

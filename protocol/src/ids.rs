@@ -1,0 +1,106 @@
+//! Typed identifiers. Each has an explicit integer size on the wire and serialises as its bare
+//! value (a MessagePack or JSON integer), so other languages see plain numbers.
+
+use serde::{Deserialize, Serialize};
+use std::fmt;
+
+/// A simulation tick. Tick `t` advances the world from time `t * dt` to `(t + 1) * dt`, where
+/// `dt = 1 / tick_hz` seconds. `u32` lasts over two years at 64 Hz.
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize,
+)]
+#[serde(transparent)]
+pub struct Tick(pub u32);
+
+impl Tick {
+    /// The tick after this one, saturating at `u32::MAX`.
+    #[must_use]
+    pub fn next(self) -> Tick {
+        Tick(self.0.saturating_add(1))
+    }
+}
+
+impl fmt::Display for Tick {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.0)
+    }
+}
+
+/// A client, unique within a world. Chosen by the client and carried in its key expressions.
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize,
+)]
+#[serde(transparent)]
+pub struct ClientId(pub u32);
+
+impl fmt::Display for ClientId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.0)
+    }
+}
+
+/// A body in the world (dynamic, static, terrain). Assigned by the server; never reused within
+/// a run, so an event naming an entity is unambiguous.
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize,
+)]
+#[serde(transparent)]
+pub struct EntityId(pub u32);
+
+impl fmt::Display for EntityId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.0)
+    }
+}
+
+/// A world name: the `{world}` segment of every key expression. 1 to 64 characters from
+/// `[a-z0-9_-]`, so it can never smuggle a `/` or a wildcard into a key.
+#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(try_from = "String", into = "String")]
+pub struct WorldId(String);
+
+impl WorldId {
+    /// Checks the name and wraps it.
+    pub fn new(name: impl Into<String>) -> Result<WorldId, crate::ProtocolError> {
+        let name = name.into();
+        let ok_len = !name.is_empty() && name.len() <= crate::limits::MAX_NAME_LEN;
+        let ok_chars = name
+            .bytes()
+            .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_' || b == b'-');
+        if ok_len && ok_chars {
+            Ok(WorldId(name))
+        } else {
+            Err(crate::ProtocolError::OutOfRange {
+                field: "world".into(),
+                detail: format!(
+                    "world name {name:?} must be 1..={} characters of [a-z0-9_-]",
+                    crate::limits::MAX_NAME_LEN
+                ),
+            })
+        }
+    }
+
+    /// The name as it appears in key expressions.
+    pub fn as_str(&self) -> &str {
+        &self.0
+    }
+}
+
+impl TryFrom<String> for WorldId {
+    type Error = crate::ProtocolError;
+    fn try_from(s: String) -> Result<Self, Self::Error> {
+        WorldId::new(s)
+    }
+}
+
+impl From<WorldId> for String {
+    fn from(w: WorldId) -> String {
+        w.0
+    }
+}
+
+impl fmt::Display for WorldId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}

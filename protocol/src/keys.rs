@@ -1,0 +1,165 @@
+//! Every Zenoh key expression impact uses, built in one place under the versioned prefix
+//! `impact/v1/{world}`. The patterns in [`PATTERNS`] are the single source: the builders fill
+//! them in, and a test checks that `PROTOCOL.md` documents each one.
+
+use crate::error::ProtocolError;
+use crate::ids::{ClientId, WorldId};
+
+/// The protocol version segment. Bumped on any incompatible wire change.
+pub const VERSION: &str = "v1";
+
+/// A documented key: its name, who publishes it, and its pattern.
+#[derive(Clone, Copy, Debug)]
+pub struct KeyPattern {
+    /// Short name.
+    pub name: &'static str,
+    /// The pattern, with `{world}` and `{client}` placeholders.
+    pub pattern: &'static str,
+}
+
+/// Client -> server inputs ([`ClientMessage`](crate::ClientMessage)).
+pub const INPUT: KeyPattern = KeyPattern {
+    name: "input",
+    pattern: "impact/v1/{world}/input/{client}",
+};
+/// Per-tick event batches ([`ServerMessage::Events`](crate::ServerMessage::Events)).
+pub const EVENTS: KeyPattern = KeyPattern {
+    name: "events",
+    pattern: "impact/v1/{world}/events",
+};
+/// Corrections of published ticks.
+pub const CORRECTIONS: KeyPattern = KeyPattern {
+    name: "corrections",
+    pattern: "impact/v1/{world}/corrections",
+};
+/// Confirmed (final) event batches.
+pub const CONFIRMED: KeyPattern = KeyPattern {
+    name: "confirmed",
+    pattern: "impact/v1/{world}/confirmed",
+};
+/// Events, corrections and confirmations that involve one client's entities.
+pub const CLIENT_EVENTS: KeyPattern = KeyPattern {
+    name: "client_events",
+    pattern: "impact/v1/{world}/client/{client}/events",
+};
+/// Acks, rejects, ray results and the welcome for one client.
+pub const CLIENT_ACK: KeyPattern = KeyPattern {
+    name: "client_ack",
+    pattern: "impact/v1/{world}/client/{client}/ack",
+};
+/// Server statistics, once a second.
+pub const STATS: KeyPattern = KeyPattern {
+    name: "stats",
+    pattern: "impact/v1/{world}/stats",
+};
+/// Liveliness token a client declares while connected.
+pub const PRESENCE: KeyPattern = KeyPattern {
+    name: "presence",
+    pattern: "impact/v1/{world}/presence/{client}",
+};
+/// Queryable: world state at a tick (`?tick=T`).
+pub const QUERY_STATE: KeyPattern = KeyPattern {
+    name: "query_state",
+    pattern: "impact/v1/{world}/query/state",
+};
+/// Queryable: events of a tick range (`?from=T1;to=T2`).
+pub const QUERY_HISTORY: KeyPattern = KeyPattern {
+    name: "query_history",
+    pattern: "impact/v1/{world}/query/history",
+};
+
+/// Every key impact uses.
+pub const PATTERNS: [KeyPattern; 10] = [
+    INPUT,
+    EVENTS,
+    CORRECTIONS,
+    CONFIRMED,
+    CLIENT_EVENTS,
+    CLIENT_ACK,
+    STATS,
+    PRESENCE,
+    QUERY_STATE,
+    QUERY_HISTORY,
+];
+
+impl KeyPattern {
+    /// The key for one world (and, where the pattern has one, one client).
+    pub fn key(&self, world: &WorldId, client: Option<ClientId>) -> String {
+        let with_world = self.pattern.replace("{world}", world.as_str());
+        match client {
+            Some(c) => with_world.replace("{client}", &c.0.to_string()),
+            None => with_world.replace("{client}", "*"),
+        }
+    }
+
+    /// The key for one world with `*` for the client: what the server subscribes to.
+    pub fn any_client(&self, world: &WorldId) -> String {
+        self.key(world, None)
+    }
+
+    /// The key with `*` for the world too: what an inspector of every world subscribes to.
+    pub fn any_world(&self) -> String {
+        self.pattern
+            .replace("{world}", "*")
+            .replace("{client}", "*")
+    }
+
+    /// Reads `(world, client)` back out of a concrete key of this pattern.
+    pub fn parse(&self, key: &str) -> Result<(WorldId, Option<ClientId>), ProtocolError> {
+        let bad = || ProtocolError::BadKey {
+            key: key.chars().take(200).collect(),
+            expected: self.pattern,
+        };
+        let pat: Vec<&str> = self.pattern.split('/').collect();
+        let got: Vec<&str> = key.split('/').collect();
+        if pat.len() != got.len() {
+            return Err(bad());
+        }
+        let mut world = None;
+        let mut client = None;
+        for (p, g) in pat.iter().zip(&got) {
+            match *p {
+                "{world}" => world = Some(WorldId::new(*g).map_err(|_| bad())?),
+                "{client}" => client = Some(ClientId(g.parse::<u32>().map_err(|_| bad())?)),
+                lit if lit == *g => {}
+                _ => return Err(bad()),
+            }
+        }
+        Ok((world.ok_or_else(bad)?, client))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn keys_are_built_and_parsed_back() {
+        let w = WorldId::new("arena").unwrap();
+        let k = INPUT.key(&w, Some(ClientId(42)));
+        assert_eq!(k, "impact/v1/arena/input/42");
+        assert_eq!(INPUT.parse(&k).unwrap(), (w.clone(), Some(ClientId(42))));
+        assert_eq!(INPUT.any_client(&w), "impact/v1/arena/input/*");
+        assert_eq!(EVENTS.any_world(), "impact/v1/*/events");
+        assert!(INPUT.parse("impact/v1/arena/input/x").is_err());
+        assert!(INPUT.parse("impact/v1/arena/input/1/2").is_err());
+        assert!(INPUT.parse("impact/v2/arena/input/1").is_err());
+        assert!(INPUT.parse("impact/v1/Ar*na/input/1").is_err());
+    }
+
+    #[test]
+    fn every_pattern_is_versioned_and_unique() {
+        for (i, p) in PATTERNS.iter().enumerate() {
+            assert!(
+                p.pattern
+                    .starts_with(&format!("impact/{VERSION}/{{world}}/")),
+                "{}",
+                p.pattern
+            );
+            for q in &PATTERNS[i + 1..] {
+                assert_ne!(p.pattern, q.pattern);
+                assert_ne!(p.name, q.name);
+            }
+        }
+    }
+}

@@ -1,0 +1,32 @@
+//! The impact wire protocol: what crosses the network between the authoritative server and
+//! its clients. Types, key expressions, the codec and the limits; no I/O and no async, so a
+//! client, a test or a tool can use it without pulling in a runtime.
+//!
+//! - [`ids`]: typed identifiers with explicit sizes on the wire (`u32`, never `usize`).
+//! - [`message`]: one enum per direction, [`ClientMessage`] and [`ServerMessage`].
+//! - [`event`]: the [`CollisionEvent`] the server publishes.
+//! - [`keys`]: every Zenoh key expression, built in one place under `impact/v1/{world}`.
+//! - [`codec`]: [`encode`] and [`decode`], MessagePack by default, JSON on request.
+//! - [`limits`]: the hard bounds every decoded message is checked against.
+//!
+//! `PROTOCOL.md` at the repository root documents all of it for a client in another language.
+
+pub mod codec;
+pub mod error;
+pub mod event;
+pub mod ids;
+pub mod keys;
+pub mod limits;
+pub mod message;
+pub mod validate;
+
+pub use codec::{decode, encode, Encoding};
+pub use error::ProtocolError;
+pub use event::{CollisionEvent, EventStatus, Phase, Response};
+pub use ids::{ClientId, EntityId, Tick, WorldId};
+pub use message::{
+    Action, BodyState, ClientInput, ClientMessage, CorrectionBatch, EventBatch, EventHistory,
+    InputAck, InputReject, QueryError, RayHit, RayResult, RejectReason, ServerMessage, ServerStats,
+    ShapeSpec, Welcome, WorldSnapshot,
+};
+pub use validate::Validate;

@@ -1,0 +1,371 @@
+//! Messages, one enum per direction: [`ClientMessage`] (client -> server) and
+//! [`ServerMessage`] (server -> clients).
+//!
+//! Both enums, and [`Action`] and [`ShapeSpec`], are *internally tagged*: a message is a map
+//! whose `"type"` entry names the variant (`{"type": "input", ...}`), which any MessagePack or
+//! JSON library can build and read without knowing Rust's enum layout.
+
+use crate::event::CollisionEvent;
+use crate::ids::{ClientId, EntityId, Tick};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// Client -> server.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum ClientMessage {
+    /// Inputs stamped with the tick the client saw when it acted.
+    Input(ClientInput),
+}
+
+/// One batch of actions a client took at `tick`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ClientInput {
+    /// Who sent it; must match the `{client}` segment of the key it was published on.
+    pub client: ClientId,
+    /// Per-client sequence number; a repeated `seq` is a duplicate and is ignored.
+    pub seq: u32,
+    /// The tick the actions apply at (usually a past tick: the server rolls back to it).
+    pub tick: Tick,
+    /// What to do, in order; at most [`MAX_ACTIONS_PER_INPUT`](crate::limits::MAX_ACTIONS_PER_INPUT).
+    pub actions: Vec<Action>,
+}
+
+/// One thing a client can do to the world. Velocities in m/s, positions in metres, world frame.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum Action {
+    /// Set the velocity of an entity the client owns.
+    SetVelocity {
+        /// The owned entity.
+        entity: EntityId,
+        /// New velocity, m/s.
+        velocity: [f64; 3],
+    },
+    /// Add `impulse / mass` to the velocity of an owned entity.
+    ApplyImpulse {
+        /// The owned entity.
+        entity: EntityId,
+        /// Impulse, N*s.
+        impulse: [f64; 3],
+    },
+    /// Spawn a projectile owned by the client.
+    SpawnProjectile {
+        /// Its shape.
+        shape: ShapeSpec,
+        /// Centre at the input's tick, metres.
+        position: [f64; 3],
+        /// Velocity, m/s.
+        velocity: [f64; 3],
+    },
+    /// Fire a hitscan ray, tested against the world as it was at the input's tick.
+    FireRay {
+        /// The owned entity that fires (it is never hit by its own ray).
+        shooter: EntityId,
+        /// Ray origin, metres.
+        origin: [f64; 3],
+        /// Ray direction; any non-zero length, normalised by the server.
+        direction: [f64; 3],
+        /// Longest distance tested, metres.
+        max_distance_m: f64,
+    },
+    /// Remove an owned entity.
+    Despawn {
+        /// The owned entity.
+        entity: EntityId,
+    },
+}
+
+/// A shape a client may spawn. Dimensions in metres, all `> 0`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum ShapeSpec {
+    /// A sphere.
+    Sphere {
+        /// Radius, metres.
+        radius_m: f64,
+    },
+    /// A capsule along the local y axis.
+    Capsule {
+        /// Half the length of the segment between the two cap centres, metres.
+        half_height_m: f64,
+        /// Radius, metres.
+        radius_m: f64,
+    },
+    /// An axis-aligned box (at spawn).
+    Cuboid {
+        /// Half extents along x, y, z, metres.
+        half_extents_m: [f64; 3],
+    },
+}
+
+/// Server -> clients.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum ServerMessage {
+    /// The events of one tick as first simulated (status `provisional`).
+    Events(EventBatch),
+    /// What a re-simulation changed in an already published tick.
+    Corrections(CorrectionBatch),
+    /// The final events of a tick that left the rollback window (status `confirmed`).
+    Confirmed(EventBatch),
+    /// An input was accepted.
+    Ack(InputAck),
+    /// An input was refused, with the reason.
+    Reject(InputReject),
+    /// The answer to a [`Action::FireRay`].
+    RayResult(RayResult),
+    /// A client joined: its avatar and the world's clock.
+    Welcome(Welcome),
+    /// The world at a tick (answer to the state query).
+    Snapshot(WorldSnapshot),
+    /// Events of a tick range (answer to the history query).
+    History(EventHistory),
+    /// Server figures, once a second.
+    Stats(ServerStats),
+    /// A query could not be answered.
+    QueryError(QueryError),
+}
+
+/// The events of one tick.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EventBatch {
+    /// The tick.
+    pub tick: Tick,
+    /// 0 when first published; each correction of this tick increments it.
+    pub revision: u32,
+    /// The events, in time-of-impact order.
+    pub events: Vec<CollisionEvent>,
+}
+
+/// The difference between what was published for `tick` and what a re-simulation produced.
+/// A client that applies it (remove `retracted`, replace `amended`, insert `added`, matching by
+/// [`CollisionEvent::key`]) holds the tick's events at `revision`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CorrectionBatch {
+    /// The re-simulated tick.
+    pub tick: Tick,
+    /// The revision this batch brings the tick to (>= 1).
+    pub revision: u32,
+    /// Events that no longer happen (as they were published).
+    pub retracted: Vec<CollisionEvent>,
+    /// Events that still happen with changed fields (new values).
+    pub amended: Vec<CollisionEvent>,
+    /// Events that happen now and were not published before.
+    pub added: Vec<CollisionEvent>,
+}
+
+/// An input was accepted.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct InputAck {
+    /// The sender.
+    pub client: ClientId,
+    /// The input's `seq`.
+    pub seq: u32,
+    /// The tick the input was stamped with.
+    pub tick: Tick,
+    /// The tick it was applied at (differs from `tick` only under the clamp policy).
+    pub applied_tick: Tick,
+    /// The server's current tick when it was accepted.
+    pub server_tick: Tick,
+}
+
+/// Why an input was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RejectReason {
+    /// Stamped older than the rollback window (see `oldest_tick`).
+    Stale,
+    /// Stamped further ahead than the allowed lead (see `newest_tick`).
+    Future,
+    /// Names an entity the client does not own, or the key's client differs from `client`.
+    NotOwner,
+    /// Names an entity that does not exist.
+    UnknownEntity,
+    /// A NaN or infinite number.
+    InvalidNumber,
+    /// A value outside its range (speed over the class limit, zero ray direction, ...).
+    OutOfRange,
+    /// More inputs per second than the per-client limit.
+    RateLimited,
+    /// Payload over the size limit, or too many actions.
+    TooLarge,
+    /// Not a decodable message.
+    Malformed,
+    /// The server's ingress queue was full; resend later.
+    QueueFull,
+    /// The same `(client, seq)` was already accepted.
+    Duplicate,
+}
+
+impl RejectReason {
+    /// Every reason, in declaration order.
+    pub const ALL: [RejectReason; 11] = [
+        RejectReason::Stale,
+        RejectReason::Future,
+        RejectReason::NotOwner,
+        RejectReason::UnknownEntity,
+        RejectReason::InvalidNumber,
+        RejectReason::OutOfRange,
+        RejectReason::RateLimited,
+        RejectReason::TooLarge,
+        RejectReason::Malformed,
+        RejectReason::QueueFull,
+        RejectReason::Duplicate,
+    ];
+
+    /// The snake_case name used on the wire and in stats.
+    pub fn name(self) -> &'static str {
+        match self {
+            RejectReason::Stale => "stale",
+            RejectReason::Future => "future",
+            RejectReason::NotOwner => "not_owner",
+            RejectReason::UnknownEntity => "unknown_entity",
+            RejectReason::InvalidNumber => "invalid_number",
+            RejectReason::OutOfRange => "out_of_range",
+            RejectReason::RateLimited => "rate_limited",
+            RejectReason::TooLarge => "too_large",
+            RejectReason::Malformed => "malformed",
+            RejectReason::QueueFull => "queue_full",
+            RejectReason::Duplicate => "duplicate",
+        }
+    }
+}
+
+/// An input was refused. Sent on the client's `ack` key.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct InputReject {
+    /// The sender, as far as it could be read (0 when the payload could not be decoded and the
+    /// key named no client).
+    pub client: ClientId,
+    /// The input's `seq` (0 when unknown).
+    pub seq: u32,
+    /// The input's tick (0 when unknown).
+    pub tick: Tick,
+    /// Why.
+    pub reason: RejectReason,
+    /// Human-readable detail: the field and the bound.
+    pub detail: String,
+    /// The oldest tick the server accepts now (with `stale`).
+    pub oldest_tick: Option<Tick>,
+    /// The newest tick the server accepts now (with `future`).
+    pub newest_tick: Option<Tick>,
+}
+
+/// The result of a hitscan ray.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RayResult {
+    /// The shooter's client.
+    pub client: ClientId,
+    /// The input's `seq`.
+    pub seq: u32,
+    /// The tick the ray was tested at (the shooter's tick: lag compensation).
+    pub tick: Tick,
+    /// The entity that fired.
+    pub shooter: EntityId,
+    /// The first thing hit, if any.
+    pub hit: Option<RayHit>,
+}
+
+/// Where a ray hit.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RayHit {
+    /// The entity hit.
+    pub entity: EntityId,
+    /// Hit point, world frame, metres.
+    pub point: [f64; 3],
+    /// Unit surface normal at the hit, world frame, facing the ray origin.
+    pub normal: [f64; 3],
+    /// Distance from the origin, metres.
+    pub distance_m: f64,
+}
+
+/// Sent to a client when its presence appears and its avatar is spawned.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Welcome {
+    /// The client.
+    pub client: ClientId,
+    /// Its avatar, if the scene spawns one.
+    pub avatar: Option<EntityId>,
+    /// The server's tick when the avatar was spawned.
+    pub tick: Tick,
+    /// Ticks per second.
+    pub tick_hz: u32,
+    /// Ticks of history the server keeps (inputs older than `tick - window` are stale).
+    pub window_ticks: u32,
+}
+
+/// One body in a snapshot.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BodyState {
+    /// The body.
+    pub entity: EntityId,
+    /// Its class name from the scene.
+    pub class: String,
+    /// Owning client, if any.
+    pub owner: Option<ClientId>,
+    /// Centre, world frame, metres.
+    pub position: [f64; 3],
+    /// Velocity, m/s.
+    pub velocity: [f64; 3],
+}
+
+/// The world at the end of `tick`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WorldSnapshot {
+    /// The tick.
+    pub tick: Tick,
+    /// The deterministic state hash of the world at that tick (64-bit FNV-1a over the state).
+    pub state_hash: u64,
+    /// Every body, by ascending entity id.
+    pub bodies: Vec<BodyState>,
+}
+
+/// Events of ticks `from..=to`, in tick order, as they stand now.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EventHistory {
+    /// First tick.
+    pub from: Tick,
+    /// Last tick.
+    pub to: Tick,
+    /// The events.
+    pub events: Vec<CollisionEvent>,
+}
+
+/// A query the server could not answer.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct QueryError {
+    /// Why (e.g. the tick left the history window).
+    pub detail: String,
+}
+
+/// Server figures over the last reporting period (one second).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ServerStats {
+    /// The current tick.
+    pub tick: Tick,
+    /// Tick duration median, milliseconds.
+    pub tick_ms_p50: f64,
+    /// Tick duration 99th percentile, milliseconds.
+    pub tick_ms_p99: f64,
+    /// Longest tick, milliseconds.
+    pub tick_ms_max: f64,
+    /// Ticks that missed their deadline, since start.
+    pub overruns: u64,
+    /// Bodies in the world.
+    pub bodies: u32,
+    /// Narrowphase pairs tested in the last tick.
+    pub pairs_tested: u32,
+    /// Rollbacks in the period.
+    pub rollbacks: u32,
+    /// Deepest rollback in the period, ticks.
+    pub rollback_depth_max: u32,
+    /// Inputs accepted since start.
+    pub inputs_accepted: u64,
+    /// Inputs rejected since start, by reason (snake_case reason name -> count).
+    pub inputs_rejected: BTreeMap<String, u64>,
+    /// Events published per second.
+    pub events_per_s: f64,
+    /// Deepest the ingress queue got in the period.
+    pub queue_depth_max: u32,
+}

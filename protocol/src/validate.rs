@@ -1,0 +1,263 @@
+//! Value checks run on every decoded message: finite numbers, ranges, counts. Errors name the
+//! field by path (`actions[2].velocity[1]`) so a client developer can find the bug. The happy
+//! path allocates nothing: paths are only built when a check fails.
+
+use crate::error::ProtocolError;
+use crate::event::CollisionEvent;
+use crate::limits::*;
+use crate::message::*;
+
+/// A decoded message that can check its own values.
+pub trait Validate {
+    /// `Ok` when every number is finite and in range and every count within its limit.
+    fn validate(&self) -> Result<(), ProtocolError>;
+}
+
+fn finite(x: f64, path: impl Fn() -> String) -> Result<(), ProtocolError> {
+    if x.is_finite() {
+        Ok(())
+    } else {
+        Err(ProtocolError::NonFinite { field: path() })
+    }
+}
+
+fn vec3(
+    v: &[f64; 3],
+    max_norm: f64,
+    what: &str,
+    path: impl Fn() -> String,
+) -> Result<(), ProtocolError> {
+    for (i, x) in v.iter().enumerate() {
+        finite(*x, || format!("{}[{i}]", path()))?;
+    }
+    let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    if norm > max_norm {
+        return Err(ProtocolError::OutOfRange {
+            field: path(),
+            detail: format!("{what} {norm:e} exceeds {max_norm:e}"),
+        });
+    }
+    Ok(())
+}
+
+fn coord3(v: &[f64; 3], path: impl Fn() -> String) -> Result<(), ProtocolError> {
+    for (i, x) in v.iter().enumerate() {
+        finite(*x, || format!("{}[{i}]", path()))?;
+        if x.abs() > MAX_ABS_COORD_M {
+            return Err(ProtocolError::OutOfRange {
+                field: format!("{}[{i}]", path()),
+                detail: format!("|coordinate| {x:e} m exceeds {MAX_ABS_COORD_M:e} m"),
+            });
+        }
+    }
+    Ok(())
+}
+
+fn positive(x: f64, max: f64, path: impl Fn() -> String) -> Result<(), ProtocolError> {
+    finite(x, &path)?;
+    if x > 0.0 && x <= max {
+        Ok(())
+    } else {
+        Err(ProtocolError::OutOfRange {
+            field: path(),
+            detail: format!("{x:e} not in (0, {max:e}]"),
+        })
+    }
+}
+
+fn count(n: usize, max: usize, path: &str) -> Result<(), ProtocolError> {
+    if n <= max {
+        Ok(())
+    } else {
+        Err(ProtocolError::OutOfRange {
+            field: path.into(),
+            detail: format!("{n} items, at most {max}"),
+        })
+    }
+}
+
+impl Validate for ShapeSpec {
+    fn validate(&self) -> Result<(), ProtocolError> {
+        self.validate_at(&|| "shape".to_string())
+    }
+}
+
+impl ShapeSpec {
+    fn validate_at(&self, path: &dyn Fn() -> String) -> Result<(), ProtocolError> {
+        match self {
+            ShapeSpec::Sphere { radius_m } => positive(*radius_m, MAX_SHAPE_DIM_M, || {
+                format!("{}.radius_m", path())
+            }),
+            ShapeSpec::Capsule {
+                half_height_m,
+                radius_m,
+            } => {
+                positive(*radius_m, MAX_SHAPE_DIM_M, || {
+                    format!("{}.radius_m", path())
+                })?;
+                positive(*half_height_m, MAX_SHAPE_DIM_M, || {
+                    format!("{}.half_height_m", path())
+                })
+            }
+            ShapeSpec::Cuboid { half_extents_m } => {
+                for (i, h) in half_extents_m.iter().enumerate() {
+                    positive(*h, MAX_SHAPE_DIM_M, || {
+                        format!("{}.half_extents_m[{i}]", path())
+                    })?;
+                }
+                Ok(())
+            }
+        }
+    }
+}
+
+impl Validate for Action {
+    fn validate(&self) -> Result<(), ProtocolError> {
+        self.validate_at(&|| "action".to_string())
+    }
+}
+
+impl Action {
+    fn validate_at(&self, path: &dyn Fn() -> String) -> Result<(), ProtocolError> {
+        let field = |name: &str| format!("{}.{name}", path());
+        match self {
+            Action::SetVelocity { velocity, .. } => {
+                vec3(velocity, MAX_SPEED_MPS, "speed (m/s)", || field("velocity"))
+            }
+            Action::ApplyImpulse { impulse, .. } => {
+                vec3(impulse, MAX_IMPULSE_NS, "impulse (N*s)", || {
+                    field("impulse")
+                })
+            }
+            Action::SpawnProjectile {
+                shape,
+                position,
+                velocity,
+            } => {
+                shape.validate_at(&|| field("shape"))?;
+                coord3(position, || field("position"))?;
+                vec3(velocity, MAX_SPEED_MPS, "speed (m/s)", || field("velocity"))
+            }
+            Action::FireRay {
+                origin,
+                direction,
+                max_distance_m,
+                ..
+            } => {
+                coord3(origin, || field("origin"))?;
+                vec3(direction, f64::MAX, "length", || field("direction"))?;
+                let len2 = direction.iter().map(|x| x * x).sum::<f64>();
+                // Components are finite (checked above), so len2 is a number; it may overflow to inf.
+                if len2 <= 1e-24 || !len2.is_finite() {
+                    return Err(ProtocolError::OutOfRange {
+                        field: field("direction"),
+                        detail: "direction must be non-zero".into(),
+                    });
+                }
+                positive(*max_distance_m, MAX_RAY_DISTANCE_M, || {
+                    field("max_distance_m")
+                })
+            }
+            Action::Despawn { .. } => Ok(()),
+        }
+    }
+}
+
+impl Validate for ClientInput {
+    fn validate(&self) -> Result<(), ProtocolError> {
+        if self.actions.len() > MAX_ACTIONS_PER_INPUT {
+            // Too many actions is a size problem, reported as such.
+            return Err(ProtocolError::TooLarge {
+                len: self.actions.len(),
+                limit: MAX_ACTIONS_PER_INPUT,
+            });
+        }
+        for (i, a) in self.actions.iter().enumerate() {
+            a.validate_at(&|| format!("actions[{i}]"))?;
+        }
+        Ok(())
+    }
+}
+
+impl Validate for ClientMessage {
+    fn validate(&self) -> Result<(), ProtocolError> {
+        match self {
+            ClientMessage::Input(input) => input.validate(),
+        }
+    }
+}
+
+impl Validate for CollisionEvent {
+    fn validate(&self) -> Result<(), ProtocolError> {
+        let CollisionEvent {
+            toi,
+            point,
+            normal,
+            depth_m,
+            closing_speed_mps,
+            ..
+        } = self;
+        finite(*toi, || "toi".into())?;
+        if !(0.0..=1.0).contains(toi) {
+            return Err(ProtocolError::OutOfRange {
+                field: "toi".into(),
+                detail: format!("{toi} not in [0, 1]"),
+            });
+        }
+        coord3(point, || "point".into())?;
+        vec3(normal, 1.0 + 1e-6, "length", || "normal".into())?;
+        finite(*depth_m, || "depth_m".into())?;
+        finite(*closing_speed_mps, || "closing_speed_mps".into())
+    }
+}
+
+fn events(list: &[CollisionEvent]) -> Result<(), ProtocolError> {
+    list.iter().try_for_each(Validate::validate)
+}
+
+impl Validate for ServerMessage {
+    fn validate(&self) -> Result<(), ProtocolError> {
+        match self {
+            ServerMessage::Events(b) | ServerMessage::Confirmed(b) => events(&b.events),
+            ServerMessage::Corrections(c) => {
+                events(&c.retracted)?;
+                events(&c.amended)?;
+                events(&c.added)
+            }
+            ServerMessage::History(h) => events(&h.events),
+            ServerMessage::RayResult(r) => match &r.hit {
+                Some(hit) => {
+                    coord3(&hit.point, || "hit.point".into())?;
+                    vec3(&hit.normal, 1.0 + 1e-6, "length", || "hit.normal".into())?;
+                    finite(hit.distance_m, || "hit.distance_m".into())
+                }
+                None => Ok(()),
+            },
+            ServerMessage::Snapshot(s) => {
+                for (i, b) in s.bodies.iter().enumerate() {
+                    coord3(&b.position, || format!("bodies[{i}].position"))?;
+                    vec3(&b.velocity, f64::MAX, "speed", || {
+                        format!("bodies[{i}].velocity")
+                    })?;
+                    count(b.class.len(), MAX_NAME_LEN, "class")?;
+                }
+                Ok(())
+            }
+            ServerMessage::Stats(s) => {
+                for (name, x) in [
+                    ("tick_ms_p50", s.tick_ms_p50),
+                    ("tick_ms_p99", s.tick_ms_p99),
+                    ("tick_ms_max", s.tick_ms_max),
+                    ("events_per_s", s.events_per_s),
+                ] {
+                    finite(x, || name.into())?;
+                }
+                Ok(())
+            }
+            ServerMessage::Ack(_)
+            | ServerMessage::Reject(_)
+            | ServerMessage::Welcome(_)
+            | ServerMessage::QueryError(_) => Ok(()),
+        }
+    }
+}

@@ -1,0 +1,295 @@
+//! proptest strategies for every wire type, shared by the protocol tests.
+#![allow(dead_code)]
+
+use impact_protocol::*;
+use proptest::collection::{btree_map, vec};
+use proptest::option;
+use proptest::prelude::*;
+
+pub fn coord() -> impl Strategy<Value = f64> {
+    -1.0e7..1.0e7f64
+}
+pub fn vec3() -> impl Strategy<Value = [f64; 3]> {
+    [coord(), coord(), coord()]
+}
+pub fn small3() -> impl Strategy<Value = [f64; 3]> {
+    [-1.0e3..1.0e3f64, -1.0e3..1.0e3f64, -1.0e3..1.0e3f64]
+}
+pub fn unit3() -> impl Strategy<Value = [f64; 3]> {
+    (-1.0..1.0f64, -1.0..1.0f64, 0.1..1.0f64).prop_map(|(x, y, z)| {
+        let n = (x * x + y * y + z * z).sqrt();
+        [x / n, y / n, z / n]
+    })
+}
+pub fn dim() -> impl Strategy<Value = f64> {
+    1.0e-3..1.0e3f64
+}
+pub fn tick() -> impl Strategy<Value = Tick> {
+    any::<u32>().prop_map(Tick)
+}
+pub fn entity() -> impl Strategy<Value = EntityId> {
+    any::<u32>().prop_map(EntityId)
+}
+pub fn client() -> impl Strategy<Value = ClientId> {
+    any::<u32>().prop_map(ClientId)
+}
+
+pub fn shape() -> impl Strategy<Value = ShapeSpec> {
+    prop_oneof![
+        dim().prop_map(|radius_m| ShapeSpec::Sphere { radius_m }),
+        (dim(), dim()).prop_map(|(half_height_m, radius_m)| ShapeSpec::Capsule {
+            half_height_m,
+            radius_m
+        }),
+        [dim(), dim(), dim()].prop_map(|half_extents_m| ShapeSpec::Cuboid { half_extents_m }),
+    ]
+}
+
+pub fn action() -> impl Strategy<Value = Action> {
+    prop_oneof![
+        (entity(), small3())
+            .prop_map(|(entity, velocity)| Action::SetVelocity { entity, velocity }),
+        (entity(), small3()).prop_map(|(entity, impulse)| Action::ApplyImpulse { entity, impulse }),
+        (shape(), vec3(), small3()).prop_map(|(shape, position, velocity)| {
+            Action::SpawnProjectile {
+                shape,
+                position,
+                velocity,
+            }
+        }),
+        (entity(), vec3(), unit3(), 0.1..1.0e4f64).prop_map(
+            |(shooter, origin, direction, max_distance_m)| {
+                Action::FireRay {
+                    shooter,
+                    origin,
+                    direction,
+                    max_distance_m,
+                }
+            }
+        ),
+        entity().prop_map(|entity| Action::Despawn { entity }),
+    ]
+}
+
+pub fn client_message() -> impl Strategy<Value = ClientMessage> {
+    (
+        client(),
+        any::<u32>(),
+        tick(),
+        vec(action(), 0..=limits::MAX_ACTIONS_PER_INPUT),
+    )
+        .prop_map(|(client, seq, tick, actions)| {
+            ClientMessage::Input(ClientInput {
+                client,
+                seq,
+                tick,
+                actions,
+            })
+        })
+}
+
+pub fn event() -> impl Strategy<Value = CollisionEvent> {
+    (
+        (tick(), 0.0..=1.0f64, entity(), entity()),
+        (vec3(), unit3(), 0.0..10.0f64, -100.0..100.0f64),
+        (
+            prop_oneof![Just(Phase::Begin), Just(Phase::End), Just(Phase::Hit)],
+            prop_oneof![
+                Just(Response::Bounce),
+                Just(Response::Slide),
+                Just(Response::Stop),
+                Just(Response::Destroy),
+                Just(Response::Trigger)
+            ],
+            prop_oneof![
+                Just(EventStatus::Provisional),
+                Just(EventStatus::Corrected),
+                Just(EventStatus::Confirmed)
+            ],
+        ),
+    )
+        .prop_map(
+            |(
+                (tick, toi, a, b),
+                (point, normal, depth_m, closing_speed_mps),
+                (phase, response, status),
+            )| {
+                CollisionEvent {
+                    tick,
+                    toi,
+                    a,
+                    b,
+                    point,
+                    normal,
+                    depth_m,
+                    closing_speed_mps,
+                    phase,
+                    response,
+                    status,
+                }
+            },
+        )
+}
+
+fn events() -> impl Strategy<Value = Vec<CollisionEvent>> {
+    vec(event(), 0..6)
+}
+
+pub fn reason() -> impl Strategy<Value = RejectReason> {
+    proptest::sample::select(RejectReason::ALL.to_vec())
+}
+
+fn batch() -> impl Strategy<Value = EventBatch> {
+    (tick(), any::<u32>(), events()).prop_map(|(tick, revision, events)| EventBatch {
+        tick,
+        revision,
+        events,
+    })
+}
+
+pub fn server_message() -> impl Strategy<Value = ServerMessage> {
+    prop_oneof![
+        batch().prop_map(ServerMessage::Events),
+        batch().prop_map(ServerMessage::Confirmed),
+        (tick(), any::<u32>(), events(), events(), events()).prop_map(
+            |(tick, revision, retracted, amended, added)| {
+                ServerMessage::Corrections(CorrectionBatch {
+                    tick,
+                    revision,
+                    retracted,
+                    amended,
+                    added,
+                })
+            }
+        ),
+        (client(), any::<u32>(), tick(), tick(), tick()).prop_map(
+            |(client, seq, tick, applied_tick, server_tick)| {
+                ServerMessage::Ack(InputAck {
+                    client,
+                    seq,
+                    tick,
+                    applied_tick,
+                    server_tick,
+                })
+            }
+        ),
+        (
+            client(),
+            any::<u32>(),
+            tick(),
+            reason(),
+            "[a-z ]{0,40}",
+            option::of(tick()),
+            option::of(tick())
+        )
+            .prop_map(
+                |(client, seq, tick, reason, detail, oldest_tick, newest_tick)| {
+                    ServerMessage::Reject(InputReject {
+                        client,
+                        seq,
+                        tick,
+                        reason,
+                        detail,
+                        oldest_tick,
+                        newest_tick,
+                    })
+                }
+            ),
+        (
+            client(),
+            any::<u32>(),
+            tick(),
+            entity(),
+            option::of((entity(), vec3(), unit3(), 0.0..1.0e4f64))
+        )
+            .prop_map(|(client, seq, tick, shooter, hit)| {
+                ServerMessage::RayResult(RayResult {
+                    client,
+                    seq,
+                    tick,
+                    shooter,
+                    hit: hit.map(|(entity, point, normal, distance_m)| RayHit {
+                        entity,
+                        point,
+                        normal,
+                        distance_m,
+                    }),
+                })
+            }),
+        (
+            client(),
+            option::of(entity()),
+            tick(),
+            1..1000u32,
+            0..1000u32
+        )
+            .prop_map(|(client, avatar, tick, tick_hz, window_ticks)| {
+                ServerMessage::Welcome(Welcome {
+                    client,
+                    avatar,
+                    tick,
+                    tick_hz,
+                    window_ticks,
+                })
+            }),
+        (
+            tick(),
+            any::<u64>(),
+            vec(
+                (
+                    entity(),
+                    "[a-z]{1,10}",
+                    option::of(client()),
+                    vec3(),
+                    small3()
+                ),
+                0..5
+            )
+        )
+            .prop_map(|(tick, state_hash, bodies)| {
+                ServerMessage::Snapshot(WorldSnapshot {
+                    tick,
+                    state_hash,
+                    bodies: bodies
+                        .into_iter()
+                        .map(|(entity, class, owner, position, velocity)| BodyState {
+                            entity,
+                            class,
+                            owner,
+                            position,
+                            velocity,
+                        })
+                        .collect(),
+                })
+            }),
+        (tick(), tick(), events()).prop_map(|(from, to, events)| ServerMessage::History(
+            EventHistory { from, to, events }
+        )),
+        (
+            tick(),
+            (0.0..100.0f64, 0.0..100.0f64, 0.0..100.0f64),
+            any::<u64>(),
+            any::<u32>(),
+            btree_map("[a-z_]{1,12}", any::<u64>(), 0..4),
+            0.0..1e6f64
+        )
+            .prop_map(|(tick, (p50, p99, max), overruns, bodies, rejected, eps)| {
+                ServerMessage::Stats(ServerStats {
+                    tick,
+                    tick_ms_p50: p50,
+                    tick_ms_p99: p99,
+                    tick_ms_max: max,
+                    overruns,
+                    bodies,
+                    pairs_tested: bodies / 2,
+                    rollbacks: 3,
+                    rollback_depth_max: 7,
+                    inputs_accepted: overruns / 2,
+                    inputs_rejected: rejected,
+                    events_per_s: eps,
+                    queue_depth_max: 9,
+                })
+            }),
+        "[a-z ]{0,40}".prop_map(|detail| ServerMessage::QueryError(QueryError { detail })),
+    ]
+}
