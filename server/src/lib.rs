@@ -1,1 +1,16 @@
-//! impact server.
+//! impact: an authoritative collision server for multiplayer games.
+//!
+//! - [`sim`]: the deterministic core (world state, the tick, the plan).
+//! - [`broadphase`], [`narrow`], [`toi`], [`terrain`], [`query`]: the collision machinery the
+//!   tick is built from, one concept per module.
+//! - [`scene`]: the scene file format and loader.
+//! - [`offline`]: running a scene with no network (`impact-server --offline`).
+
+pub mod broadphase;
+pub mod narrow;
+pub mod offline;
+pub mod query;
+pub mod scene;
+pub mod sim;
+pub mod terrain;
+pub mod toi;

@@ -1,0 +1,327 @@
+//! Ray casts against the world: dynamic bodies, static bodies and the terrain. Analytic for
+//! spheres and ellipsoids, parry's ray casts (in the body's local frame, so far-away bodies stay
+//! accurate) for the other shapes, and a grid walk for the height field.
+
+use crate::sim::shape::{Aabb, Shape};
+use crate::sim::world::World;
+use crate::terrain::heightfield::HeightField;
+use glam::{DQuat, DVec3};
+use impact_protocol::{EntityId, RayHit};
+use rapier3d::parry;
+use rapier3d::parry::query::RayCast;
+
+/// The first hit of the ray `origin + s * dir` (`dir` unit, `0 <= s <= max_m`), skipping
+/// `exclude` (the shooter).
+pub fn cast(
+    w: &World,
+    origin: DVec3,
+    dir: DVec3,
+    max_m: f64,
+    exclude: Option<EntityId>,
+) -> Option<RayHit> {
+    let end = origin + dir * max_m;
+    let ray_box = Aabb {
+        min: origin.min(end),
+        max: origin.max(end),
+    };
+    let mut best: Option<(f64, EntityId, DVec3)> = None;
+    let mut consider = |hit: Option<(f64, DVec3)>, id: EntityId| {
+        if let Some((s, n)) = hit {
+            if s <= max_m && best.is_none_or(|(bs, bid, _)| s < bs || (s == bs && id < bid)) {
+                best = Some((s, id, n));
+            }
+        }
+    };
+    let b = &w.bodies;
+    for i in 0..b.len() {
+        if Some(b.id[i]) == exclude {
+            continue;
+        }
+        if !b.shape[i].world_aabb(b.pos[i], b.rot[i]).overlaps(&ray_box) {
+            continue;
+        }
+        consider(
+            cast_shape(&b.shape[i], b.pos[i], b.rot[i], origin, dir, max_m),
+            b.id[i],
+        );
+    }
+    let s = &w.statics;
+    for k in 0..s.id.len() {
+        if Some(s.id[k]) == exclude || !s.aabb[k].overlaps(&ray_box) {
+            continue;
+        }
+        consider(
+            cast_shape(&s.shape[k], s.pos[k], s.rot[k], origin, dir, max_m),
+            s.id[k],
+        );
+    }
+    if let Some(t) = &s.terrain {
+        consider(cast_heightfield(&t.field, origin, dir, max_m), t.id);
+    }
+    best.map(|(s, entity, normal)| RayHit {
+        entity,
+        point: (origin + dir * s).to_array(),
+        normal: normal.to_array(),
+        distance_m: s,
+    })
+}
+
+/// Distance and unit normal (facing the ray) of the first hit on one shape.
+pub fn cast_shape(
+    shape: &Shape,
+    pos: DVec3,
+    rot: DQuat,
+    origin: DVec3,
+    dir: DVec3,
+    max_m: f64,
+) -> Option<(f64, DVec3)> {
+    let inv = rot.inverse();
+    let o = inv * (origin - pos);
+    let d = inv * dir;
+    let (s, n_local) = match shape {
+        Shape::Sphere { radius } => ray_ellipsoid(o, d, DVec3::splat(*radius))?,
+        Shape::Ellipsoid { radii } => ray_ellipsoid(o, d, *radii)?,
+        _ => {
+            let ray = parry::query::Ray::new(o.as_vec3(), d.as_vec3());
+            let hit = match shape {
+                Shape::Capsule {
+                    half_height,
+                    radius,
+                } => parry::shape::Capsule::new_y(*half_height as f32, *radius as f32)
+                    .cast_local_ray_and_get_normal(&ray, max_m as f32, true),
+                Shape::Cuboid { half_extents } => parry::shape::Cuboid::new(half_extents.as_vec3())
+                    .cast_local_ray_and_get_normal(&ray, max_m as f32, true),
+                Shape::Convex(hull) => {
+                    hull.parry
+                        .cast_local_ray_and_get_normal(&ray, max_m as f32, true)
+                }
+                Shape::TriMesh(mesh) => {
+                    mesh.cast_local_ray_and_get_normal(&ray, max_m as f32, true)
+                }
+                Shape::Sphere { .. } | Shape::Ellipsoid { .. } => {
+                    unreachable!("handled analytically")
+                }
+            }?;
+            (f64::from(hit.time_of_impact), hit.normal.as_dvec3())
+        }
+    };
+    let mut n = (rot * n_local).normalize_or(-dir);
+    if n.dot(dir) > 0.0 {
+        n = -n; // a mesh hit from behind: face the shooter
+    }
+    Some((s, n))
+}
+
+/// Ray against the ellipsoid `x^2/a^2 + y^2/b^2 + z^2/c^2 = 1` (a sphere when all equal), in its
+/// frame. A ray starting inside hits at distance 0 with the normal facing back along the ray.
+fn ray_ellipsoid(o: DVec3, d: DVec3, radii: DVec3) -> Option<(f64, DVec3)> {
+    let os = o / radii;
+    let ds = d / radii;
+    let a = ds.length_squared();
+    let b = os.dot(ds);
+    let c = os.length_squared() - 1.0;
+    if c <= 0.0 {
+        return Some((0.0, -d));
+    }
+    if b >= 0.0 || a == 0.0 {
+        return None;
+    }
+    let disc = b * b - a * c;
+    if disc < 0.0 {
+        return None;
+    }
+    // Stable smaller root (see toi::analytic for the same form).
+    let s = c / (-b + disc.sqrt());
+    let p = o + d * s;
+    Some((s, (p / (radii * radii)).normalize_or(-d)))
+}
+
+/// Moller-Trumbore: distance along the ray to triangle `t`, if hit from either side.
+fn ray_triangle(o: DVec3, d: DVec3, t: &[DVec3; 3]) -> Option<f64> {
+    let e1 = t[1] - t[0];
+    let e2 = t[2] - t[0];
+    let p = d.cross(e2);
+    let det = e1.dot(p);
+    if det.abs() < 1e-300 {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = o - t[0];
+    let u = s.dot(p) * inv;
+    if !(0.0..=1.0).contains(&u) {
+        return None;
+    }
+    let q = s.cross(e1);
+    let v = d.dot(q) * inv;
+    if v < 0.0 || u + v > 1.0 {
+        return None;
+    }
+    let dist = e2.dot(q) * inv;
+    (dist >= 0.0).then_some(dist)
+}
+
+/// Walks the cells the ray crosses in x-z, in order, and returns the first triangle hit.
+fn cast_heightfield(
+    field: &HeightField,
+    origin: DVec3,
+    dir: DVec3,
+    max_m: f64,
+) -> Option<(f64, DVec3)> {
+    let bounds = field.aabb();
+    // Clip the ray to the field's box.
+    let (mut s0, mut s1) = (0.0f64, max_m);
+    for k in 0..3 {
+        if dir[k].abs() < 1e-300 {
+            if origin[k] < bounds.min[k] || origin[k] > bounds.max[k] {
+                return None;
+            }
+        } else {
+            let a = (bounds.min[k] - origin[k]) / dir[k];
+            let b = (bounds.max[k] - origin[k]) / dir[k];
+            s0 = s0.max(a.min(b));
+            s1 = s1.min(a.max(b));
+        }
+    }
+    if s0 > s1 {
+        return None;
+    }
+    // Sample the clipped segment finely enough to visit every cell it crosses: a step of
+    // half the smaller cell side in x-z, then test the cells around each sample.
+    let ext = bounds.extents();
+    let cell = field.cell_size();
+    let step = 0.5 * cell.0.min(cell.1);
+    let horizontal = (dir.x * dir.x + dir.z * dir.z).sqrt();
+    let steps = if horizontal > 0.0 {
+        (((s1 - s0) * horizontal) / step).ceil() as usize + 1
+    } else {
+        1
+    };
+    let steps = steps.min(4 * (ext.x / cell.0 + ext.z / cell.1) as usize + 8);
+    let mut best: Option<(f64, DVec3)> = None;
+    for k in 0..=steps {
+        let s = if steps == 0 {
+            s0
+        } else {
+            s0 + (s1 - s0) * k as f64 / steps as f64
+        };
+        let p = origin + dir * s;
+        let probe = Aabb {
+            min: p - DVec3::new(step, 0.0, step),
+            max: p + DVec3::new(step, 0.0, step),
+        };
+        let probe = Aabb {
+            min: DVec3::new(probe.min.x, bounds.min.y, probe.min.z),
+            max: DVec3::new(probe.max.x, bounds.max.y, probe.max.z),
+        };
+        field.for_each_triangle_in(&probe, |t| {
+            if let Some(dist) = ray_triangle(origin, dir, &t) {
+                if dist <= max_m && best.is_none_or(|(b, _)| dist < b) {
+                    best = Some((dist, HeightField::plane_normal(&t).normalize()));
+                }
+            }
+        });
+        // Cells are visited in ray order: a hit before the next sample's reach is final.
+        if let Some((b, _)) = best {
+            if b <= s {
+                break;
+            }
+        }
+    }
+    best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sphere_and_box_hits_hand_computed() {
+        let s = Shape::Sphere { radius: 1.0 };
+        let (d, n) = cast_shape(
+            &s,
+            DVec3::new(10.0, 0.0, 0.0),
+            DQuat::IDENTITY,
+            DVec3::ZERO,
+            DVec3::X,
+            100.0,
+        )
+        .unwrap();
+        assert!((d - 9.0).abs() < 1e-12);
+        assert!((n + DVec3::X).length() < 1e-12);
+        assert!(cast_shape(
+            &s,
+            DVec3::new(10.0, 1.5, 0.0),
+            DQuat::IDENTITY,
+            DVec3::ZERO,
+            DVec3::X,
+            100.0
+        )
+        .is_none());
+        assert!(
+            cast_shape(
+                &s,
+                DVec3::new(10.0, 0.0, 0.0),
+                DQuat::IDENTITY,
+                DVec3::ZERO,
+                DVec3::X,
+                8.0
+            )
+            .is_none()
+                || cast_shape(
+                    &s,
+                    DVec3::new(10.0, 0.0, 0.0),
+                    DQuat::IDENTITY,
+                    DVec3::ZERO,
+                    DVec3::X,
+                    8.0
+                )
+                .unwrap()
+                .0 > 8.0
+        );
+        let b = Shape::Cuboid {
+            half_extents: DVec3::new(0.5, 2.0, 2.0),
+        };
+        let (d, n) = cast_shape(
+            &b,
+            DVec3::new(0.0, 0.0, 5.0),
+            DQuat::IDENTITY,
+            DVec3::ZERO,
+            DVec3::Z,
+            100.0,
+        )
+        .unwrap();
+        assert!((d - 3.0).abs() < 1e-5, "{d}");
+        assert!((n + DVec3::Z).length() < 1e-5);
+        // Far from the origin the local frame keeps it exact.
+        let far = DVec3::new(1.0e7, 0.0, 0.0);
+        let (d, _) = cast_shape(
+            &s,
+            far + DVec3::new(10.0, 0.0, 0.0),
+            DQuat::IDENTITY,
+            far,
+            DVec3::X,
+            100.0,
+        )
+        .unwrap();
+        assert!((d - 9.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn heightfield_ray_hits_the_plane_under_it() {
+        let rows = vec![vec![0.0; 11]; 11];
+        let f = HeightField::new(DVec3::ZERO, 1.0, 1.0, &rows).unwrap();
+        // Straight down onto a flat field at (3.3, 10, 4.7).
+        let (d, n) = cast_heightfield(&f, DVec3::new(3.3, 10.0, 4.7), -DVec3::Y, 100.0).unwrap();
+        assert!((d - 10.0).abs() < 1e-12);
+        assert!((n - DVec3::Y).length() < 1e-12);
+        // A shallow ray from outside the field reaching it far away.
+        let dir = DVec3::new(1.0, -0.1, 0.0).normalize();
+        let (d, _) = cast_heightfield(&f, DVec3::new(-5.0, 1.0, 5.0), dir, 100.0).unwrap();
+        let hit = DVec3::new(-5.0, 1.0, 5.0) + dir * d;
+        assert!(
+            (hit.y).abs() < 1e-9 && (hit.x - 5.0).abs() < 1e-9,
+            "{hit:?}"
+        );
+        assert!(cast_heightfield(&f, DVec3::new(3.0, 1.0, 3.0), DVec3::Y, 100.0).is_none());
+    }
+}

@@ -1,0 +1,335 @@
+//! The scene file format (TOML), as documented in SCENES.md. Every table refuses unknown keys,
+//! so a typo is an error naming the key rather than a silently ignored setting.
+
+use serde::Deserialize;
+
+/// A whole scene file.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneFile {
+    /// World settings.
+    pub world: WorldDef,
+    /// Classes.
+    #[serde(default, rename = "class")]
+    pub classes: Vec<ClassDef>,
+    /// Responses between classes.
+    #[serde(default, rename = "response")]
+    pub responses: Vec<ResponseDef>,
+    /// Individual bodies.
+    #[serde(default, rename = "body")]
+    pub bodies: Vec<BodyDef>,
+    /// Random scatters of many bodies.
+    #[serde(default, rename = "scatter")]
+    pub scatters: Vec<ScatterDef>,
+    /// Regular arrays of bodies (bricks, pins).
+    #[serde(default, rename = "array")]
+    pub arrays: Vec<ArrayDef>,
+    /// Height-field terrain.
+    #[serde(default)]
+    pub terrain: Option<TerrainDef>,
+    /// How client avatars and projectiles are made.
+    #[serde(default)]
+    pub spawn: Option<SpawnDef>,
+}
+
+fn default_tick_hz() -> u32 {
+    64
+}
+fn default_rollback_ms() -> u32 {
+    250
+}
+fn default_max_bodies() -> u32 {
+    100_000
+}
+fn default_restitution() -> f64 {
+    1.0
+}
+fn default_slop() -> f64 {
+    1.0e-4
+}
+fn default_max_speed() -> f64 {
+    100.0
+}
+fn default_true() -> bool {
+    true
+}
+fn default_density() -> f64 {
+    1000.0
+}
+fn default_lead() -> u32 {
+    8
+}
+fn default_resolutions() -> u32 {
+    100_000
+}
+
+/// `[world]`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WorldDef {
+    /// World name (the `{world}` key segment): `[a-z0-9_-]`, 1 to 64 characters.
+    pub name: String,
+    /// Ticks per second (default 64: a power of two makes dt exact).
+    #[serde(default = "default_tick_hz")]
+    pub tick_hz: u32,
+    /// Gravity, m/s^2 (default none).
+    #[serde(default)]
+    pub gravity: [f64; 3],
+    /// Rollback window, ms (default 250).
+    #[serde(default = "default_rollback_ms")]
+    pub rollback_ms: u32,
+    /// How far ahead of the server an input may be stamped, ticks (default 8).
+    #[serde(default = "default_lead")]
+    pub input_lead_ticks: u32,
+    /// Most bodies (default 100,000).
+    #[serde(default = "default_max_bodies")]
+    pub max_bodies: u32,
+    /// Response for class pairs with no `[[response]]` entry (default bounce).
+    #[serde(default)]
+    pub default_response: ResponseKind,
+    /// Restitution for the default bounce (default 1).
+    #[serde(default = "default_restitution")]
+    pub restitution: f64,
+    /// Bodies closer than this count as touching, m (default 1e-4).
+    #[serde(default = "default_slop")]
+    pub contact_slop_m: f64,
+    /// Time-of-impact tolerance as a fraction of a tick (default 2^-15).
+    #[serde(default)]
+    pub toi_tolerance: Option<f64>,
+    /// Most contact resolutions in one tick (default 100,000).
+    #[serde(default = "default_resolutions")]
+    pub max_resolutions_per_tick: u32,
+}
+
+/// `[[class]]`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClassDef {
+    /// Name.
+    pub name: String,
+    /// Static geometry (never moves).
+    #[serde(default, rename = "static")]
+    pub is_static: bool,
+    /// Largest speed an input may set, m/s (default 100).
+    #[serde(default = "default_max_speed")]
+    pub max_speed_mps: f64,
+    /// Whether gravity applies (default true).
+    #[serde(default = "default_true")]
+    pub gravity: bool,
+    /// Density for bodies without `mass_kg`, kg/m^3 (default 1000).
+    #[serde(default = "default_density")]
+    pub density_kg_m3: f64,
+    /// Immovable (infinite mass) but not static: bricks that can be destroyed.
+    #[serde(default)]
+    pub immovable: bool,
+}
+
+/// A response kind.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ResponseKind {
+    /// Not tested at all.
+    Ignore,
+    /// Event only.
+    Trigger,
+    /// Reflect along the normal.
+    #[default]
+    Bounce,
+    /// Slide along.
+    Slide,
+    /// Stop.
+    Stop,
+    /// Destroy (see `destroy`).
+    Destroy,
+}
+
+/// Which side a destroy response removes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DestroyWhich {
+    /// The first class in `between`.
+    First,
+    /// The second class in `between`.
+    Second,
+    /// Both.
+    Both,
+}
+
+/// `[[response]]`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ResponseDef {
+    /// The two classes.
+    pub between: [String; 2],
+    /// What happens.
+    pub kind: ResponseKind,
+    /// Restitution for `bounce` (default: the world's). With `destroy`, the survivor bounces
+    /// off the destroyed body with this restitution; without it, it passes on.
+    #[serde(default)]
+    pub restitution: Option<f64>,
+    /// Who goes, for `destroy` (required there).
+    #[serde(default)]
+    pub destroy: Option<DestroyWhich>,
+}
+
+/// A shape in a scene file.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ShapeDef {
+    /// Sphere.
+    Sphere {
+        /// Radius, m.
+        radius_m: f64,
+    },
+    /// Capsule along local y.
+    Capsule {
+        /// Half segment length, m.
+        half_height_m: f64,
+        /// Radius, m.
+        radius_m: f64,
+    },
+    /// Box.
+    Cuboid {
+        /// Half extents, m.
+        half_extents_m: [f64; 3],
+    },
+    /// Ellipsoid.
+    Ellipsoid {
+        /// Semi-axes, m.
+        radii_m: [f64; 3],
+    },
+    /// Convex hull of points (local frame, m).
+    Convex {
+        /// The points.
+        points: Vec<[f64; 3]>,
+    },
+    /// Triangle mesh (static classes only).
+    Mesh {
+        /// Vertices, local frame, m.
+        vertices: Vec<[f64; 3]>,
+        /// Triangles as vertex index triples.
+        triangles: Vec<[u32; 3]>,
+    },
+}
+
+/// `[[body]]`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BodyDef {
+    /// Class name.
+    pub class: String,
+    /// Shape.
+    pub shape: ShapeDef,
+    /// Centre, m.
+    pub position: [f64; 3],
+    /// Velocity, m/s.
+    #[serde(default)]
+    pub velocity: [f64; 3],
+    /// Orientation as rotations about x, y, z in degrees, applied in that order.
+    #[serde(default)]
+    pub rotation_deg: [f64; 3],
+    /// Mass, kg (default: density x volume).
+    #[serde(default)]
+    pub mass_kg: Option<f64>,
+    /// Owning client id, so scripted or real inputs may drive it.
+    #[serde(default)]
+    pub owner: Option<u32>,
+}
+
+/// `[[scatter]]`: `count` bodies placed on a jittered lattice inside a box, never overlapping,
+/// with random velocities, from a seeded generator (the same seed gives the same scene).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScatterDef {
+    /// Class name.
+    pub class: String,
+    /// Shape of every body.
+    pub shape: ShapeDef,
+    /// How many.
+    pub count: u32,
+    /// Region minimum corner, m.
+    pub min: [f64; 3],
+    /// Region maximum corner, m.
+    pub max: [f64; 3],
+    /// Speed range `[lo, hi]`, m/s, in uniformly random directions (default at rest).
+    #[serde(default)]
+    pub speed_mps: [f64; 2],
+    /// Restrict velocities to the x-z plane.
+    #[serde(default)]
+    pub planar: bool,
+    /// Generator seed.
+    #[serde(default)]
+    pub seed: u64,
+}
+
+/// `[[array]]`: a regular grid of bodies.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ArrayDef {
+    /// Class name.
+    pub class: String,
+    /// Shape of every body.
+    pub shape: ShapeDef,
+    /// Centre of the first body, m.
+    pub origin: [f64; 3],
+    /// Bodies along x, y, z.
+    pub count: [u32; 3],
+    /// Spacing along x, y, z, m.
+    pub spacing_m: [f64; 3],
+    /// Velocity of every body, m/s.
+    #[serde(default)]
+    pub velocity: [f64; 3],
+}
+
+/// `[terrain]`: a height field, given as rows or generated.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TerrainDef {
+    /// Class name (usually a static class).
+    pub class: String,
+    /// Corner of sample (0, 0); heights are added to its y, m.
+    pub origin: [f64; 3],
+    /// Cell size along x and z, m.
+    pub cell_m: [f64; 2],
+    /// Heights by row (z) then column (x), m.
+    #[serde(default)]
+    pub heights: Option<Vec<Vec<f64>>>,
+    /// Or: rolling hills generated on an `nx` x `nz` grid.
+    #[serde(default)]
+    pub hills: Option<HillsDef>,
+}
+
+/// Generated rolling hills: `amplitude * sin(2 pi x / wavelength) * cos(2 pi z / wavelength)`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HillsDef {
+    /// Samples along x.
+    pub nx: u32,
+    /// Samples along z.
+    pub nz: u32,
+    /// Height amplitude, m.
+    pub amplitude_m: f64,
+    /// Wavelength, m.
+    pub wavelength_m: f64,
+}
+
+/// `[spawn]`: avatars for clients that join, and the projectile class.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpawnDef {
+    /// Class of avatars (`None`: clients get no avatar).
+    #[serde(default)]
+    pub avatar_class: Option<String>,
+    /// Shape of avatars.
+    #[serde(default)]
+    pub avatar_shape: Option<ShapeDef>,
+    /// Avatars appear at random points of this box (min corner), m.
+    #[serde(default)]
+    pub region_min: [f64; 3],
+    /// Max corner, m.
+    #[serde(default)]
+    pub region_max: [f64; 3],
+    /// Class of client-spawned projectiles.
+    #[serde(default)]
+    pub projectile_class: Option<String>,
+}

@@ -1,0 +1,698 @@
+//! Scenes: the TOML format ([`format`]), and loading a file into a [`World`] with errors that
+//! name the file, the entry and what is wrong. See SCENES.md.
+
+pub mod format;
+pub mod random;
+
+use crate::broadphase::StaticIndex;
+use crate::sim::shape::Shape;
+use crate::sim::world::{
+    Bodies, ClassId, ClassProps, Classes, NewBody, Rule, SimConfig, StaticWorld, Terrain, World,
+};
+use crate::terrain::heightfield::HeightField;
+use crate::toi::bisect::BisectConfig;
+use format::*;
+use glam::{DQuat, DVec3};
+use impact_protocol::{ClientId, EntityId, Tick, WorldId};
+use random::SplitMix64;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// A scene that could not be loaded: which file, which entry, what is wrong.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{file}: {entry}: {detail}")]
+pub struct SceneError {
+    /// The file (or `<inline>`).
+    pub file: String,
+    /// The entry, e.g. `body[3].shape.radius_m` or `line 12, column 5`.
+    pub entry: String,
+    /// What is wrong.
+    pub detail: String,
+}
+
+/// A loaded scene: the initial world and the rules the runtime needs for clients.
+#[derive(Debug, Clone)]
+pub struct Scene {
+    /// The world name.
+    pub name: WorldId,
+    /// The world at tick 0.
+    pub world: World,
+    /// Avatar rules, if clients get avatars.
+    pub avatar: Option<AvatarRule>,
+}
+
+/// How an avatar is made for a client that joins.
+#[derive(Debug, Clone)]
+pub struct AvatarRule {
+    /// Class.
+    pub class: ClassId,
+    /// Shape.
+    pub shape: Shape,
+    /// Spawn box min corner, m.
+    pub region_min: DVec3,
+    /// Spawn box max corner, m.
+    pub region_max: DVec3,
+}
+
+impl Scene {
+    /// Loads a scene file.
+    pub fn load(path: &Path) -> Result<Scene, SceneError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| SceneError {
+            file: file.clone(),
+            entry: "file".into(),
+            detail: e.to_string(),
+        })?;
+        Scene::parse(&text, &file)
+    }
+
+    /// Parses scene text; `file` names it in errors.
+    pub fn parse(text: &str, file: &str) -> Result<Scene, SceneError> {
+        let def: SceneFile = toml::from_str(text).map_err(|e| {
+            let entry = e
+                .span()
+                .map(|s| {
+                    let line = text[..s.start.min(text.len())].matches('\n').count() + 1;
+                    format!("line {line}")
+                })
+                .unwrap_or_else(|| "document".into());
+            SceneError {
+                file: file.into(),
+                entry,
+                detail: e.message().to_string(),
+            }
+        })?;
+        Builder { file: file.into() }.build(&def)
+    }
+
+    /// The bundled scene by name (`arena`, `breakout`, `corridor`, `terrain`, `bullets`), from
+    /// the `scenes/` directory of the repository.
+    pub fn bundled_path(name: &str) -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("..")
+            .join("scenes")
+            .join(format!("{name}.toml"))
+    }
+}
+
+struct Builder {
+    file: String,
+}
+
+/// A body on its way into the world.
+struct Item {
+    entry: String,
+    class: ClassId,
+    shape: Shape,
+    pos: DVec3,
+    vel: DVec3,
+    rot: DQuat,
+    mass: Option<f64>,
+    owner: Option<ClientId>,
+}
+
+fn finite3(v: [f64; 3]) -> bool {
+    v.iter().all(|x| x.is_finite())
+}
+
+impl Builder {
+    fn err(&self, entry: impl Into<String>, detail: impl Into<String>) -> SceneError {
+        SceneError {
+            file: self.file.clone(),
+            entry: entry.into(),
+            detail: detail.into(),
+        }
+    }
+
+    fn class(&self, classes: &Classes, name: &str, entry: &str) -> Result<ClassId, SceneError> {
+        classes.by_name(name).ok_or_else(|| {
+            let known: Vec<&str> = classes.props.iter().map(|p| p.name.as_str()).collect();
+            self.err(
+                entry,
+                format!("unknown class {name:?} (classes: {})", known.join(", ")),
+            )
+        })
+    }
+
+    fn dim(&self, x: f64, entry: &str) -> Result<f64, SceneError> {
+        if x.is_finite() && x > 0.0 && x <= 1.0e6 {
+            Ok(x)
+        } else {
+            Err(self.err(
+                entry,
+                format!("{x} must be a positive finite length (m), at most 1e6"),
+            ))
+        }
+    }
+
+    fn shape(&self, s: &ShapeDef, entry: &str, is_static: bool) -> Result<Shape, SceneError> {
+        Ok(match s {
+            ShapeDef::Sphere { radius_m } => Shape::Sphere {
+                radius: self.dim(*radius_m, &format!("{entry}.radius_m"))?,
+            },
+            ShapeDef::Capsule {
+                half_height_m,
+                radius_m,
+            } => Shape::Capsule {
+                half_height: self.dim(*half_height_m, &format!("{entry}.half_height_m"))?,
+                radius: self.dim(*radius_m, &format!("{entry}.radius_m"))?,
+            },
+            ShapeDef::Cuboid { half_extents_m } => {
+                for (k, h) in half_extents_m.iter().enumerate() {
+                    self.dim(*h, &format!("{entry}.half_extents_m[{k}]"))?;
+                }
+                Shape::Cuboid {
+                    half_extents: DVec3::from_array(*half_extents_m),
+                }
+            }
+            ShapeDef::Ellipsoid { radii_m } => {
+                for (k, h) in radii_m.iter().enumerate() {
+                    self.dim(*h, &format!("{entry}.radii_m[{k}]"))?;
+                }
+                Shape::Ellipsoid {
+                    radii: DVec3::from_array(*radii_m),
+                }
+            }
+            ShapeDef::Convex { points } => {
+                if let Some(k) = points.iter().position(|p| !finite3(*p)) {
+                    return Err(self.err(format!("{entry}.points[{k}]"), "not a finite point"));
+                }
+                let pts: Vec<DVec3> = points.iter().map(|p| DVec3::from_array(*p)).collect();
+                Shape::convex_hull(&pts).ok_or_else(|| {
+                    self.err(
+                        format!("{entry}.points"),
+                        "needs at least 4 points that are not coplanar",
+                    )
+                })?
+            }
+            ShapeDef::Mesh {
+                vertices,
+                triangles,
+            } => {
+                if !is_static {
+                    return Err(self.err(entry, "a mesh can only belong to a static class"));
+                }
+                if let Some(k) = vertices.iter().position(|p| !finite3(*p)) {
+                    return Err(self.err(format!("{entry}.vertices[{k}]"), "not a finite point"));
+                }
+                if let Some(k) = triangles
+                    .iter()
+                    .position(|t| t.iter().any(|&i| i as usize >= vertices.len()))
+                {
+                    return Err(self.err(
+                        format!("{entry}.triangles[{k}]"),
+                        format!("names a vertex past the {} given", vertices.len()),
+                    ));
+                }
+                let v: Vec<_> = vertices
+                    .iter()
+                    .map(|p| DVec3::from_array(*p).as_vec3())
+                    .collect();
+                let mesh = rapier3d::parry::shape::TriMesh::new(v, triangles.clone())
+                    .map_err(|e| self.err(entry, format!("invalid mesh: {e:?}")))?;
+                Shape::TriMesh(Arc::new(mesh))
+            }
+        })
+    }
+
+    fn build(&self, def: &SceneFile) -> Result<Scene, SceneError> {
+        let w = &def.world;
+        let name =
+            WorldId::new(w.name.clone()).map_err(|e| self.err("world.name", e.to_string()))?;
+        if !(1..=1000).contains(&w.tick_hz) {
+            return Err(self.err(
+                "world.tick_hz",
+                format!("{} must be in 1..=1000", w.tick_hz),
+            ));
+        }
+        if !finite3(w.gravity) {
+            return Err(self.err("world.gravity", "must be finite"));
+        }
+        if !(w.contact_slop_m.is_finite() && w.contact_slop_m > 0.0 && w.contact_slop_m < 1.0) {
+            return Err(self.err(
+                "world.contact_slop_m",
+                format!("{} must be in (0, 1) m", w.contact_slop_m),
+            ));
+        }
+        let mut bisect = BisectConfig::default();
+        if let Some(tol) = w.toi_tolerance {
+            if !(tol.is_finite() && tol > 0.0 && tol <= 0.5) {
+                return Err(self.err(
+                    "world.toi_tolerance",
+                    format!("{tol} must be in (0, 0.5] (fraction of a tick)"),
+                ));
+            }
+            bisect.tolerance = tol;
+        }
+        if !(0.0..=1.0).contains(&w.restitution) {
+            return Err(self.err(
+                "world.restitution",
+                format!("{} must be in [0, 1]", w.restitution),
+            ));
+        }
+        if def.classes.is_empty() {
+            return Err(self.err("class", "a scene needs at least one [[class]]"));
+        }
+        let mut props = Vec::new();
+        let mut immovable = Vec::new();
+        for (k, c) in def.classes.iter().enumerate() {
+            let entry = format!("class[{k}]");
+            if def.classes[..k].iter().any(|o| o.name == c.name) {
+                return Err(self.err(
+                    format!("{entry}.name"),
+                    format!("class {:?} is defined twice", c.name),
+                ));
+            }
+            if !(c.max_speed_mps.is_finite() && c.max_speed_mps > 0.0) {
+                return Err(self.err(
+                    format!("{entry}.max_speed_mps"),
+                    "must be positive and finite",
+                ));
+            }
+            if !(c.density_kg_m3.is_finite() && c.density_kg_m3 > 0.0) {
+                return Err(self.err(
+                    format!("{entry}.density_kg_m3"),
+                    "must be positive and finite",
+                ));
+            }
+            props.push(ClassProps {
+                name: c.name.clone(),
+                is_static: c.is_static,
+                max_speed_mps: c.max_speed_mps,
+                gravity: c.gravity,
+                density_kg_m3: c.density_kg_m3,
+            });
+            immovable.push(c.immovable || c.is_static);
+        }
+        let default = rule_of(w.default_response, w.restitution, None, None)
+            .expect("default response has no destroy side");
+        let mut classes = Classes::new(props, default);
+        for (k, r) in def.responses.iter().enumerate() {
+            let entry = format!("response[{k}]");
+            let a = self.class(&classes, &r.between[0], &format!("{entry}.between[0]"))?;
+            let b = self.class(&classes, &r.between[1], &format!("{entry}.between[1]"))?;
+            let restitution = r.restitution.unwrap_or(w.restitution);
+            if !(0.0..=1.0).contains(&restitution) {
+                return Err(self.err(
+                    format!("{entry}.restitution"),
+                    format!("{restitution} must be in [0, 1]"),
+                ));
+            }
+            let rule = rule_of(r.kind, restitution, r.destroy, r.restitution).ok_or_else(|| {
+                self.err(
+                    format!("{entry}.destroy"),
+                    "kind = \"destroy\" needs destroy = \"first\", \"second\" or \"both\"",
+                )
+            })?;
+            if let Rule::Destroy { first, second, .. } = rule {
+                for (goes, class, side) in [(first, a, "first"), (second, b, "second")] {
+                    if goes && classes.props[class.0 as usize].is_static {
+                        return Err(self.err(
+                            format!("{entry}.destroy"),
+                            format!(
+                                "the {side} class {:?} is static and cannot be destroyed",
+                                classes.props[class.0 as usize].name
+                            ),
+                        ));
+                    }
+                }
+            }
+            classes.set_rule(a, b, rule);
+        }
+
+        // Bodies, in file order: [[body]], then [[array]], then [[scatter]]. Ids ascend in that
+        // order; the terrain, if any, is entity 0.
+        let mut next_id: u32 = 0;
+        let terrain = match &def.terrain {
+            None => None,
+            Some(t) => {
+                let class = self.class(&classes, &t.class, "terrain.class")?;
+                let rows = match (&t.heights, &t.hills) {
+                    (Some(h), None) => h.clone(),
+                    (None, Some(h)) => hills(h),
+                    _ => {
+                        return Err(self.err("terrain", "give exactly one of `heights` or `hills`"))
+                    }
+                };
+                if !finite3(t.origin) {
+                    return Err(self.err("terrain.origin", "must be finite"));
+                }
+                let field =
+                    HeightField::new(DVec3::from_array(t.origin), t.cell_m[0], t.cell_m[1], &rows)
+                        .map_err(|e| self.err("terrain", e.to_string()))?;
+                let id = EntityId(next_id);
+                next_id += 1;
+                Some(Terrain { id, class, field })
+            }
+        };
+        let mut items: Vec<Item> = Vec::new();
+        for (k, b) in def.bodies.iter().enumerate() {
+            let entry = format!("body[{k}]");
+            let class = self.class(&classes, &b.class, &format!("{entry}.class"))?;
+            let is_static = classes.props[class.0 as usize].is_static;
+            let shape = self.shape(&b.shape, &format!("{entry}.shape"), is_static)?;
+            for (field, v) in [
+                ("position", b.position),
+                ("velocity", b.velocity),
+                ("rotation_deg", b.rotation_deg),
+            ] {
+                if !finite3(v) {
+                    return Err(self.err(format!("{entry}.{field}"), "must be finite"));
+                }
+            }
+            if let Some(m) = b.mass_kg {
+                if !(m.is_finite() && m > 0.0) {
+                    return Err(self.err(
+                        format!("{entry}.mass_kg"),
+                        format!("{m} must be positive and finite"),
+                    ));
+                }
+            }
+            let r = b.rotation_deg.map(f64::to_radians);
+            let rot = DQuat::from_rotation_z(r[2])
+                * DQuat::from_rotation_y(r[1])
+                * DQuat::from_rotation_x(r[0]);
+            let (pos, vel) = (DVec3::from_array(b.position), DVec3::from_array(b.velocity));
+            items.push(Item {
+                entry,
+                class,
+                shape,
+                pos,
+                vel,
+                rot,
+                mass: b.mass_kg,
+                owner: b.owner.map(ClientId),
+            });
+        }
+        for (k, a) in def.arrays.iter().enumerate() {
+            let entry = format!("array[{k}]");
+            let class = self.class(&classes, &a.class, &format!("{entry}.class"))?;
+            let shape = self.shape(
+                &a.shape,
+                &format!("{entry}.shape"),
+                classes.props[class.0 as usize].is_static,
+            )?;
+            if !finite3(a.origin) || !finite3(a.spacing_m) || !finite3(a.velocity) {
+                return Err(self.err(entry, "origin, spacing_m and velocity must be finite"));
+            }
+            for z in 0..a.count[2] {
+                for y in 0..a.count[1] {
+                    for x in 0..a.count[0] {
+                        let p = DVec3::from_array(a.origin)
+                            + DVec3::new(x as f64, y as f64, z as f64)
+                                * DVec3::from_array(a.spacing_m);
+                        let vel = DVec3::from_array(a.velocity);
+                        items.push(Item {
+                            entry: entry.clone(),
+                            class,
+                            shape: shape.clone(),
+                            pos: p,
+                            vel,
+                            rot: DQuat::IDENTITY,
+                            mass: None,
+                            owner: None,
+                        });
+                    }
+                }
+            }
+        }
+        for (k, s) in def.scatters.iter().enumerate() {
+            let entry = format!("scatter[{k}]");
+            let class = self.class(&classes, &s.class, &format!("{entry}.class"))?;
+            let shape = self.shape(
+                &s.shape,
+                &format!("{entry}.shape"),
+                classes.props[class.0 as usize].is_static,
+            )?;
+            let placed = random::scatter(s, &shape).map_err(|d| self.err(&entry, d))?;
+            for (p, v) in placed {
+                items.push(Item {
+                    entry: entry.clone(),
+                    class,
+                    shape: shape.clone(),
+                    pos: p,
+                    vel: v,
+                    rot: DQuat::IDENTITY,
+                    mass: None,
+                    owner: None,
+                });
+            }
+        }
+        let total = items.len() + usize::from(terrain.is_some());
+        if total > w.max_bodies as usize {
+            return Err(self.err(
+                "world.max_bodies",
+                format!(
+                    "the scene has {total} bodies, over max_bodies = {}",
+                    w.max_bodies
+                ),
+            ));
+        }
+
+        let mut statics = (
+            Vec::new(),
+            Vec::new(),
+            Vec::new(),
+            Vec::new(),
+            Vec::new(),
+            Vec::new(),
+        );
+        let mut bodies = Bodies::default();
+        for Item {
+            entry,
+            class,
+            shape,
+            pos,
+            vel,
+            rot,
+            mass,
+            owner,
+        } in items
+        {
+            let id = EntityId(next_id);
+            next_id += 1;
+            if classes.props[class.0 as usize].is_static {
+                if vel != DVec3::ZERO || owner.is_some() {
+                    return Err(self.err(entry, "a static body cannot have a velocity or an owner"));
+                }
+                statics.5.push(shape.world_aabb(pos, rot));
+                statics.0.push(id);
+                statics.1.push(class);
+                statics.2.push(shape);
+                statics.3.push(pos);
+                statics.4.push(rot);
+            } else {
+                let inv_mass = if immovable[class.0 as usize] {
+                    0.0
+                } else {
+                    1.0 / mass.unwrap_or_else(|| {
+                        classes.props[class.0 as usize].density_kg_m3 * shape.volume()
+                    })
+                };
+                bodies.push(
+                    id,
+                    NewBody {
+                        class,
+                        shape,
+                        pos,
+                        vel,
+                        rot,
+                        inv_mass,
+                        owner,
+                    },
+                );
+            }
+        }
+        let index = StaticIndex::new(&statics.5);
+        let static_world = StaticWorld {
+            id: statics.0,
+            class: statics.1,
+            shape: statics.2,
+            pos: statics.3,
+            rot: statics.4,
+            aabb: statics.5,
+            index,
+            terrain,
+        };
+
+        let (avatar, projectile_class) = match &def.spawn {
+            None => (None, None),
+            Some(sp) => {
+                let avatar = match (&sp.avatar_class, &sp.avatar_shape) {
+                    (Some(c), Some(s)) => {
+                        let class = self.class(&classes, c, "spawn.avatar_class")?;
+                        if classes.props[class.0 as usize].is_static {
+                            return Err(self.err("spawn.avatar_class", "avatars cannot be static"));
+                        }
+                        let shape = self.shape(s, "spawn.avatar_shape", false)?;
+                        Some(AvatarRule {
+                            class,
+                            shape,
+                            region_min: DVec3::from_array(sp.region_min),
+                            region_max: DVec3::from_array(sp.region_max),
+                        })
+                    }
+                    (None, None) => None,
+                    _ => return Err(self.err("spawn", "avatar_class and avatar_shape go together")),
+                };
+                let projectile = match &sp.projectile_class {
+                    Some(c) => Some(self.class(&classes, c, "spawn.projectile_class")?),
+                    None => None,
+                };
+                (avatar, projectile)
+            }
+        };
+
+        let dt = 1.0 / f64::from(w.tick_hz);
+        let window_ticks =
+            ((u64::from(w.rollback_ms) * u64::from(w.tick_hz)).div_ceil(1000)) as u32;
+        let config = SimConfig {
+            tick_hz: w.tick_hz,
+            dt,
+            gravity: DVec3::from_array(w.gravity),
+            classes,
+            bisect,
+            contact_slop_m: w.contact_slop_m,
+            max_resolutions_per_tick: w.max_resolutions_per_tick,
+            max_bodies: w.max_bodies,
+            window_ticks,
+            input_lead_ticks: w.input_lead_ticks,
+            projectile_class,
+        };
+        let world = World {
+            tick: Tick(0),
+            bodies,
+            next_entity: next_id,
+            touching: Vec::new(),
+            statics: Arc::new(static_world),
+            config: Arc::new(config),
+        };
+        Ok(Scene {
+            name,
+            world,
+            avatar,
+        })
+    }
+}
+
+fn rule_of(
+    kind: ResponseKind,
+    restitution: f64,
+    destroy: Option<DestroyWhich>,
+    destroy_bounce: Option<f64>,
+) -> Option<Rule> {
+    Some(match kind {
+        ResponseKind::Ignore => Rule::Ignore,
+        ResponseKind::Trigger => Rule::Trigger,
+        ResponseKind::Bounce => Rule::Bounce { restitution },
+        ResponseKind::Slide => Rule::Slide,
+        ResponseKind::Stop => Rule::Stop,
+        ResponseKind::Destroy => match destroy? {
+            DestroyWhich::First => Rule::Destroy {
+                first: true,
+                second: false,
+                restitution: destroy_bounce,
+            },
+            DestroyWhich::Second => Rule::Destroy {
+                first: false,
+                second: true,
+                restitution: destroy_bounce,
+            },
+            DestroyWhich::Both => Rule::Destroy {
+                first: true,
+                second: true,
+                restitution: None,
+            },
+        },
+    })
+}
+
+fn hills(h: &HillsDef) -> Vec<Vec<f64>> {
+    let tau = std::f64::consts::TAU;
+    (0..h.nz.max(2))
+        .map(|z| {
+            (0..h.nx.max(2))
+                .map(|x| {
+                    let (x, z) = (f64::from(x), f64::from(z));
+                    h.amplitude_m
+                        * (tau * x / h.wavelength_m).sin()
+                        * (tau * z / h.wavelength_m).cos()
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// A deterministic position for a new avatar: a random point of the region, from a generator
+/// seeded by the client id, so the same client joining at the same tick lands in the same place.
+pub fn avatar_position(rule: &AvatarRule, client: u32, tick: u32) -> DVec3 {
+    let mut rng = SplitMix64::new(u64::from(client) << 32 | u64::from(tick));
+    let u = DVec3::new(rng.unit(), rng.unit(), rng.unit());
+    rule.region_min + (rule.region_max - rule.region_min) * u
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn err(text: &str) -> SceneError {
+        Scene::parse(text, "test.toml").unwrap_err()
+    }
+
+    #[test]
+    fn errors_name_the_file_and_the_entry() {
+        let e = err("[world]\nname = \"a\"\n[[class]]\nname = \"ball\"\n[[body]]\nclass = \"bal\"\nshape = { type = \"sphere\", radius_m = 1.0 }\nposition = [0,0,0]\n");
+        assert_eq!(e.file, "test.toml");
+        assert_eq!(e.entry, "body[0].class");
+        assert!(
+            e.detail.contains("unknown class \"bal\"") && e.detail.contains("ball"),
+            "{e}"
+        );
+
+        let e = err("[world]\nname = \"a\"\n[[class]]\nname = \"ball\"\n[[body]]\nclass = \"ball\"\nshape = { type = \"sphere\", radius_m = -1.0 }\nposition = [0,0,0]\n");
+        assert_eq!(e.entry, "body[0].shape.radius_m");
+
+        let e = err("[world]\nname = \"a\"\nspeed = 3\n");
+        assert!(
+            e.entry.starts_with("line 3") && e.detail.contains("speed"),
+            "{e}"
+        );
+
+        let e = err("[world]\nname = \"Bad/Name\"\n[[class]]\nname = \"x\"\n");
+        assert_eq!(e.entry, "world.name");
+
+        let e = err("[world]\nname = \"a\"\n[[class]]\nname = \"wall\"\nstatic = true\n[[class]]\nname = \"ball\"\n[[response]]\nbetween = [\"ball\", \"wall\"]\nkind = \"destroy\"\ndestroy = \"second\"\n");
+        assert_eq!(e.entry, "response[0].destroy");
+        assert!(e.detail.contains("static"), "{e}");
+
+        let e = err("[world]\nname = \"a\"\n[[class]]\nname = \"ball\"\n[[body]]\nclass = \"ball\"\nshape = { type = \"mesh\", vertices = [[0,0,0]], triangles = [[0,0,0]] }\nposition = [0,0,0]\n");
+        assert!(e.detail.contains("static"), "{e}");
+
+        let e = err("[world]\nname = \"a\"\nmax_bodies = 10\n[[class]]\nname = \"ball\"\n[[scatter]]\nclass = \"ball\"\nshape = { type = \"sphere\", radius_m = 0.5 }\ncount = 11\nmin = [0,0,0]\nmax = [100,100,100]\n");
+        assert_eq!(e.entry, "world.max_bodies");
+        assert!(
+            Scene::load(Path::new("/nonexistent/scene.toml"))
+                .unwrap_err()
+                .entry
+                == "file"
+        );
+    }
+
+    #[test]
+    fn a_minimal_scene_loads_with_defaults() {
+        let s = Scene::parse("[world]\nname = \"mini\"\n[[class]]\nname = \"ball\"\n[[body]]\nclass = \"ball\"\nshape = { type = \"sphere\", radius_m = 0.5 }\nposition = [1,2,3]\n", "x").unwrap();
+        assert_eq!(s.world.config.tick_hz, 64);
+        assert_eq!(s.world.config.dt, 1.0 / 64.0);
+        assert_eq!(s.world.config.window_ticks, 16);
+        assert_eq!(s.world.bodies.len(), 1);
+        assert_eq!(s.world.bodies.id[0], EntityId(0));
+    }
+
+    #[test]
+    fn every_bundled_scene_loads() {
+        for name in ["arena", "breakout", "corridor", "terrain", "bullets"] {
+            let s = Scene::load(&Scene::bundled_path(name)).unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(s.name.as_str(), name);
+        }
+    }
+}

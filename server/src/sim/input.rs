@@ -1,0 +1,301 @@
+//! Client inputs inside the core: the check the runtime runs before accepting an input (so the
+//! client gets a reason), and the application at the start of a tick.
+//!
+//! Inputs apply sorted by `(client, seq)`, so arrival order never reaches the result. An input
+//! applies whole or not at all: if any action fails the check at apply time (its entity was
+//! destroyed in a re-simulated past, say), the input is skipped and reported.
+
+use crate::query::ray;
+use crate::sim::shape::Shape;
+use crate::sim::step::TickOutput;
+use crate::sim::world::{NewBody, Rule, World};
+use glam::{DQuat, DVec3};
+use impact_protocol::{
+    Action, ClientId, CollisionEvent, EntityId, EventStatus, Phase, RayResult, RejectReason,
+    Response, ShapeSpec,
+};
+
+/// The inputs one client sent for one tick.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TickInput {
+    /// The sender.
+    pub client: ClientId,
+    /// Its sequence number.
+    pub seq: u32,
+    /// The actions, in order.
+    pub actions: Vec<Action>,
+}
+
+/// An input that did not apply.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Skipped {
+    /// The sender.
+    pub client: ClientId,
+    /// Its sequence number.
+    pub seq: u32,
+    /// Why.
+    pub reason: RejectReason,
+    /// Detail for humans.
+    pub detail: String,
+}
+
+fn owned(w: &World, client: ClientId, e: EntityId) -> Result<usize, (RejectReason, String)> {
+    match w.bodies.slot(e) {
+        None => Err((
+            RejectReason::UnknownEntity,
+            format!("entity {e} does not exist"),
+        )),
+        Some(s) if w.bodies.owner[s] != Some(client) => Err((
+            RejectReason::NotOwner,
+            format!("entity {e} is not owned by client {client}"),
+        )),
+        Some(s) => Ok(s),
+    }
+}
+
+fn speed_ok(
+    w: &World,
+    slot_class: crate::sim::world::ClassId,
+    v: [f64; 3],
+    field: &str,
+) -> Result<(), (RejectReason, String)> {
+    let max = w.config.classes.props[slot_class.0 as usize].max_speed_mps;
+    let s = DVec3::from_array(v).length();
+    if s > max {
+        return Err((
+            RejectReason::OutOfRange,
+            format!("{field}: speed {s:.3} m/s exceeds the class limit {max} m/s"),
+        ));
+    }
+    Ok(())
+}
+
+/// Whether `client` may apply `actions` to the world as it is now. The runtime calls this on
+/// arrival; [`apply`] calls it again at the input's tick.
+pub fn check(
+    w: &World,
+    client: ClientId,
+    actions: &[Action],
+) -> Result<(), (RejectReason, String)> {
+    let mut spawns = 0usize;
+    for (k, a) in actions.iter().enumerate() {
+        match a {
+            Action::SetVelocity { entity, velocity } => {
+                let s = owned(w, client, *entity)?;
+                speed_ok(
+                    w,
+                    w.bodies.class[s],
+                    *velocity,
+                    &format!("actions[{k}].velocity"),
+                )?;
+            }
+            Action::ApplyImpulse { entity, .. } | Action::Despawn { entity } => {
+                owned(w, client, *entity)?;
+            }
+            Action::FireRay { shooter, .. } => {
+                owned(w, client, *shooter)?;
+            }
+            Action::SpawnProjectile { velocity, .. } => {
+                let class = w.config.projectile_class.ok_or_else(|| {
+                    (
+                        RejectReason::OutOfRange,
+                        "this scene has no projectile class: spawning is disabled".to_string(),
+                    )
+                })?;
+                speed_ok(w, class, *velocity, &format!("actions[{k}].velocity"))?;
+                spawns += 1;
+                if w.bodies.len() + spawns > w.config.max_bodies as usize {
+                    return Err((
+                        RejectReason::OutOfRange,
+                        format!("the world is full ({} bodies)", w.config.max_bodies),
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+fn clamp_speed(v: DVec3, max: f64) -> DVec3 {
+    let s = v.length();
+    if s > max {
+        v * (max / s)
+    } else {
+        v
+    }
+}
+
+/// The core shape for a wire shape.
+pub fn shape_of(spec: &ShapeSpec) -> Shape {
+    match *spec {
+        ShapeSpec::Sphere { radius_m } => Shape::Sphere { radius: radius_m },
+        ShapeSpec::Capsule {
+            half_height_m,
+            radius_m,
+        } => Shape::Capsule {
+            half_height: half_height_m,
+            radius: radius_m,
+        },
+        ShapeSpec::Cuboid { half_extents_m } => Shape::Cuboid {
+            half_extents: DVec3::from_array(half_extents_m),
+        },
+    }
+}
+
+/// Applies the tick's inputs, sorted by `(client, seq)`.
+pub fn apply(w: &mut World, inputs: &[TickInput], out: &mut TickOutput) {
+    if inputs.is_empty() {
+        return;
+    }
+    let mut order: Vec<usize> = (0..inputs.len()).collect();
+    order.sort_by_key(|&k| (inputs[k].client, inputs[k].seq));
+    let mut removed: Vec<EntityId> = Vec::new();
+    for k in order {
+        let input = &inputs[k];
+        if let Err((reason, detail)) = check(w, input.client, &input.actions) {
+            out.skipped.push(Skipped {
+                client: input.client,
+                seq: input.seq,
+                reason,
+                detail,
+            });
+            continue;
+        }
+        for a in &input.actions {
+            apply_action(w, input, a, out, &mut removed);
+        }
+    }
+    if !removed.is_empty() {
+        remove(w, &removed, out);
+    }
+}
+
+fn apply_action(
+    w: &mut World,
+    input: &TickInput,
+    a: &Action,
+    out: &mut TickOutput,
+    removed: &mut Vec<EntityId>,
+) {
+    let classes = &w.config.classes;
+    match a {
+        Action::SetVelocity { entity, velocity } => {
+            if let Some(s) = w.bodies.slot(*entity) {
+                let max = classes.props[w.bodies.class[s].0 as usize].max_speed_mps;
+                w.bodies.vel[s] = clamp_speed(DVec3::from_array(*velocity), max);
+            }
+        }
+        Action::ApplyImpulse { entity, impulse } => {
+            if let Some(s) = w.bodies.slot(*entity) {
+                let max = classes.props[w.bodies.class[s].0 as usize].max_speed_mps;
+                let v = w.bodies.vel[s] + DVec3::from_array(*impulse) * w.bodies.inv_mass[s];
+                w.bodies.vel[s] = clamp_speed(v, max);
+            }
+        }
+        Action::SpawnProjectile {
+            shape,
+            position,
+            velocity,
+        } => {
+            let Some(class) = w.config.projectile_class else {
+                return;
+            };
+            let props = &classes.props[class.0 as usize];
+            let shape = shape_of(shape);
+            let inv_mass = 1.0 / (props.density_kg_m3 * shape.volume());
+            let vel = clamp_speed(DVec3::from_array(*velocity), props.max_speed_mps);
+            let body = NewBody {
+                class,
+                shape,
+                pos: DVec3::from_array(*position),
+                vel,
+                rot: DQuat::IDENTITY,
+                inv_mass,
+                owner: Some(input.client),
+            };
+            w.spawn(body);
+        }
+        Action::FireRay {
+            shooter,
+            origin,
+            direction,
+            max_distance_m,
+        } => {
+            let dir = DVec3::from_array(*direction).normalize();
+            let hit = ray::cast(
+                w,
+                DVec3::from_array(*origin),
+                dir,
+                *max_distance_m,
+                Some(*shooter),
+            );
+            if let Some(h) = &hit {
+                let (Some(ca), Some(cb)) = (w.class_of(*shooter), w.class_of(h.entity)) else {
+                    return;
+                };
+                let rule = w.config.classes.rule(ca, cb);
+                let response = match rule {
+                    Rule::Destroy { second: true, .. } if w.bodies.slot(h.entity).is_some() => {
+                        removed.push(h.entity);
+                        Response::Destroy
+                    }
+                    _ => Response::Trigger,
+                };
+                if rule != Rule::Ignore {
+                    out.events.push(CollisionEvent {
+                        tick: w.tick,
+                        toi: 0.0,
+                        a: *shooter,
+                        b: h.entity,
+                        point: h.point,
+                        normal: h.normal,
+                        depth_m: 0.0,
+                        closing_speed_mps: 0.0,
+                        phase: Phase::Hit,
+                        response,
+                        status: EventStatus::Provisional,
+                    });
+                }
+            }
+            out.rays.push(RayResult {
+                client: input.client,
+                seq: input.seq,
+                tick: w.tick,
+                shooter: *shooter,
+                hit,
+            });
+        }
+        Action::Despawn { entity } => removed.push(*entity),
+    }
+}
+
+/// Removes bodies before the step and ends their contacts.
+fn remove(w: &mut World, removed: &[EntityId], out: &mut TickOutput) {
+    let mut dead = vec![false; w.bodies.len()];
+    for id in removed {
+        if let Some(s) = w.bodies.slot(*id) {
+            dead[s] = true;
+        }
+    }
+    let tick = w.tick;
+    let gone = |id: EntityId| removed.contains(&id);
+    for &(a, b) in &w.touching {
+        if gone(a) || gone(b) {
+            out.events.push(CollisionEvent {
+                tick,
+                toi: 0.0,
+                a,
+                b,
+                point: [0.0; 3],
+                normal: [0.0, 1.0, 0.0],
+                depth_m: 0.0,
+                closing_speed_mps: 0.0,
+                phase: Phase::End,
+                response: Response::Destroy,
+                status: EventStatus::Provisional,
+            });
+        }
+    }
+    w.touching.retain(|&(a, b)| !gone(a) && !gone(b));
+    w.bodies.remove_flagged(&dead);
+}

@@ -1,0 +1,14 @@
+//! The simulation core: pure and deterministic. No clock reaches a result, no network, no
+//! threads: [`Stepper::step`] is a function of (world, inputs) -> (world, events), and tests,
+//! benchmarks, rollback and the network runtime all drive it.
+
+pub mod input;
+pub mod plan;
+pub mod shape;
+pub mod step;
+pub mod world;
+
+pub use input::TickInput;
+pub use plan::Plan;
+pub use step::{StageStats, Stepper, TickOutput};
+pub use world::World;

@@ -1,0 +1,157 @@
+//! The plan: which stages and kernels a scene needs, chosen once from the scene so a tick never
+//! pays for what the scene does not have. Printed at start; the benchmark compares plans.
+
+use crate::broadphase::BroadphaseKind;
+use crate::narrow::Kernel;
+use crate::sim::shape::ShapeKind;
+use crate::sim::world::World;
+use std::collections::BTreeSet;
+use std::fmt;
+
+/// Stages and kernels for a world.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Plan {
+    /// Broadphase for dynamic bodies.
+    pub broadphase: BroadphaseKind,
+    /// Pair kernels the scene's shapes need (dynamic-dynamic and dynamic-static).
+    pub kernels: BTreeSet<Kernel>,
+    /// Sphere pairs take the exact swept-sphere time of impact instead of bisection.
+    pub analytic_spheres: bool,
+    /// Force every convex pair through parry's GJK (benchmarks only: the general path).
+    pub force_general: bool,
+    /// Dynamic-static pass (the scene has static bodies).
+    pub statics: bool,
+    /// Terrain pass (the scene has a height field).
+    pub terrain: bool,
+    /// Fine sampling for fast pairs (some class may move farther than a shape's extent in one
+    /// tick). Off, a pair is tested at the end of the step only.
+    pub ccd_sampling: bool,
+    /// Gravity is non-zero.
+    pub gravity: bool,
+    /// Rollback stage (window > 0 ticks).
+    pub rollback: bool,
+}
+
+/// Below this many bodies brute force beats building any structure.
+const BRUTE_FORCE_MAX: usize = 48;
+
+impl Plan {
+    /// The plan the scene needs.
+    pub fn for_world(w: &World) -> Plan {
+        let cfg = &w.config;
+        let b = &w.bodies;
+        let dyn_kinds: BTreeSet<ShapeKind> = b.shape.iter().map(|s| s.kind()).collect();
+        let static_kinds: BTreeSet<ShapeKind> = w.statics.shape.iter().map(|s| s.kind()).collect();
+        let mut kernels = BTreeSet::new();
+        for a in &dyn_kinds {
+            for k in dyn_kinds.iter().chain(&static_kinds) {
+                kernels.insert(Kernel::for_pair(*a, *k));
+            }
+        }
+        // Fast movers: a class whose speed limit covers more than the smallest dynamic extent
+        // in one tick, or a body already that fast.
+        let min_extent = b
+            .shape
+            .iter()
+            .map(|s| s.min_extent())
+            .fold(f64::INFINITY, f64::min);
+        let min_static = w
+            .statics
+            .shape
+            .iter()
+            .map(|s| s.min_extent())
+            .fold(f64::INFINITY, f64::min);
+        let step_m = 0.5 * (min_extent + min_static.min(min_extent));
+        let max_speed = cfg
+            .classes
+            .props
+            .iter()
+            .filter(|p| !p.is_static)
+            .map(|p| p.max_speed_mps)
+            .fold(0.0, f64::max);
+        let fastest_now = b.vel.iter().map(|v| v.length()).fold(0.0, f64::max);
+        let ccd_sampling = max_speed.max(fastest_now) * cfg.dt > step_m;
+        // Grid for bodies of similar size; sweep and prune when sizes vary a lot (the grid's cell
+        // is the largest box, which would put many small bodies in one cell).
+        let (rmin, rmax) = b
+            .radius
+            .iter()
+            .fold((f64::INFINITY, 0.0f64), |(lo, hi), &r| {
+                (lo.min(r), hi.max(r))
+            });
+        let broadphase = if b.len() <= BRUTE_FORCE_MAX {
+            BroadphaseKind::BruteForce
+        } else if rmax > 8.0 * rmin {
+            BroadphaseKind::SweepAndPrune
+        } else {
+            BroadphaseKind::Grid
+        };
+        Plan {
+            broadphase,
+            kernels,
+            analytic_spheres: true,
+            force_general: false,
+            statics: !w.statics.id.is_empty(),
+            terrain: w.statics.terrain.is_some(),
+            ccd_sampling,
+            gravity: cfg.gravity != glam::DVec3::ZERO,
+            rollback: cfg.window_ticks > 0,
+        }
+    }
+
+    /// The general path on the same world: no analytic sphere kernels, GJK for every pair,
+    /// sampling always on. What a plan-less engine would run; benchmarks compare against it.
+    pub fn general(w: &World) -> Plan {
+        Plan {
+            analytic_spheres: false,
+            force_general: true,
+            ccd_sampling: true,
+            ..Plan::for_world(w)
+        }
+    }
+}
+
+impl fmt::Display for Plan {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let on = |b: bool| if b { "on" } else { "skipped" };
+        writeln!(f, "plan:")?;
+        writeln!(f, "  broadphase      {}", self.broadphase.name())?;
+        let kernels: Vec<String> = self.kernels.iter().map(|k| format!("{k:?}")).collect();
+        writeln!(
+            f,
+            "  kernels         {}",
+            if kernels.is_empty() {
+                "none".into()
+            } else {
+                kernels.join(", ")
+            }
+        )?;
+        writeln!(
+            f,
+            "  sphere toi      {}",
+            if self.analytic_spheres {
+                "analytic swept sphere"
+            } else {
+                "bisection"
+            }
+        )?;
+        writeln!(
+            f,
+            "  general path    {}",
+            if self.force_general {
+                "forced (GJK for every pair)"
+            } else {
+                "only where no analytic kernel"
+            }
+        )?;
+        writeln!(f, "  static pass     {}", on(self.statics))?;
+        writeln!(f, "  terrain pass    {}", on(self.terrain))?;
+        writeln!(f, "  ccd sampling    {}", on(self.ccd_sampling))?;
+        writeln!(f, "  gravity         {}", on(self.gravity))?;
+        writeln!(f, "  rollback        {}", on(self.rollback))?;
+        write!(
+            f,
+            "  always          static-static pairs never tested; resting pairs not re-tested"
+        )
+    }
+}

@@ -1,0 +1,321 @@
+//! Collision shapes. Dynamic bodies are convex (sphere, capsule, box, ellipsoid, convex hull);
+//! static geometry may also be a triangle mesh. Terrain is a separate height field
+//! ([`crate::terrain`]).
+//!
+//! Shapes are defined in their local frame (centred on the body's position) and carried in f64.
+//! Bodies keep a fixed orientation: impact is a collision server, not a rigid-body solver, so
+//! rotation never changes during a step.
+
+use glam::{DQuat, DVec3};
+use rapier3d::parry;
+use std::sync::Arc;
+
+/// A collision shape in its local frame. Lengths in metres.
+#[derive(Clone, Debug)]
+pub enum Shape {
+    /// A sphere centred on the origin.
+    Sphere {
+        /// Radius, m.
+        radius: f64,
+    },
+    /// A capsule: the points within `radius` of the segment from `(0, -half_height, 0)` to
+    /// `(0, half_height, 0)`.
+    Capsule {
+        /// Half the segment length, m.
+        half_height: f64,
+        /// Radius, m.
+        radius: f64,
+    },
+    /// A box centred on the origin.
+    Cuboid {
+        /// Half extents along local x, y, z, m.
+        half_extents: DVec3,
+    },
+    /// An axis-aligned (in local frame) ellipsoid, handled through its support function.
+    Ellipsoid {
+        /// Semi-axes along local x, y, z, m.
+        radii: DVec3,
+    },
+    /// The convex hull of a point set.
+    Convex(Arc<ConvexHull>),
+    /// A static triangle mesh (never on a dynamic body).
+    TriMesh(Arc<parry::shape::TriMesh>),
+}
+
+/// A convex hull: the points (f64, for bounds) and parry's polyhedron (for GJK and rays).
+#[derive(Debug)]
+pub struct ConvexHull {
+    /// Hull vertices, local frame, m.
+    pub points: Vec<DVec3>,
+    /// The same hull as parry's shape (f32).
+    pub parry: parry::shape::ConvexPolyhedron,
+}
+
+/// The shape families a plan chooses kernels by.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum ShapeKind {
+    /// [`Shape::Sphere`].
+    Sphere,
+    /// [`Shape::Capsule`].
+    Capsule,
+    /// [`Shape::Cuboid`].
+    Cuboid,
+    /// [`Shape::Ellipsoid`].
+    Ellipsoid,
+    /// [`Shape::Convex`].
+    Convex,
+    /// [`Shape::TriMesh`].
+    TriMesh,
+}
+
+/// An axis-aligned bounding box in f64 (world frame unless said otherwise).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Aabb {
+    /// Minimum corner, m.
+    pub min: DVec3,
+    /// Maximum corner, m.
+    pub max: DVec3,
+}
+
+impl Aabb {
+    /// The empty box (contains nothing; `union` with it is the identity).
+    pub const EMPTY: Aabb = Aabb {
+        min: DVec3::splat(f64::INFINITY),
+        max: DVec3::splat(f64::NEG_INFINITY),
+    };
+
+    /// The smallest box containing both.
+    #[inline]
+    pub fn union(&self, other: &Aabb) -> Aabb {
+        Aabb {
+            min: self.min.min(other.min),
+            max: self.max.max(other.max),
+        }
+    }
+
+    /// Closed-interval overlap on all three axes.
+    #[inline]
+    pub fn overlaps(&self, other: &Aabb) -> bool {
+        self.min.x <= other.max.x
+            && other.min.x <= self.max.x
+            && self.min.y <= other.max.y
+            && other.min.y <= self.max.y
+            && self.min.z <= other.max.z
+            && other.min.z <= self.max.z
+    }
+
+    /// Grown by `margin` on every side.
+    #[inline]
+    pub fn inflated(&self, margin: f64) -> Aabb {
+        Aabb {
+            min: self.min - DVec3::splat(margin),
+            max: self.max + DVec3::splat(margin),
+        }
+    }
+
+    /// Moved by `d`.
+    #[inline]
+    pub fn translated(&self, d: DVec3) -> Aabb {
+        Aabb {
+            min: self.min + d,
+            max: self.max + d,
+        }
+    }
+
+    /// Size along each axis.
+    #[inline]
+    pub fn extents(&self) -> DVec3 {
+        self.max - self.min
+    }
+}
+
+impl Shape {
+    /// The family this shape belongs to.
+    pub fn kind(&self) -> ShapeKind {
+        match self {
+            Shape::Sphere { .. } => ShapeKind::Sphere,
+            Shape::Capsule { .. } => ShapeKind::Capsule,
+            Shape::Cuboid { .. } => ShapeKind::Cuboid,
+            Shape::Ellipsoid { .. } => ShapeKind::Ellipsoid,
+            Shape::Convex(_) => ShapeKind::Convex,
+            Shape::TriMesh(_) => ShapeKind::TriMesh,
+        }
+    }
+
+    /// Whether the shape is convex (every shape but a triangle mesh).
+    pub fn is_convex(&self) -> bool {
+        !matches!(self, Shape::TriMesh(_))
+    }
+
+    /// Builds a convex hull shape. `None` when the points are degenerate (fewer than four
+    /// non-coplanar points).
+    pub fn convex_hull(points: &[DVec3]) -> Option<Shape> {
+        let pts: Vec<parry::math::Vector> = points.iter().map(|p| p.as_vec3()).collect();
+        let parry = parry::shape::ConvexPolyhedron::from_convex_hull(&pts)?;
+        Some(Shape::Convex(Arc::new(ConvexHull {
+            points: points.to_vec(),
+            parry,
+        })))
+    }
+
+    /// The box bounding the shape in its local frame.
+    pub fn local_aabb(&self) -> Aabb {
+        let half = match self {
+            Shape::Sphere { radius } => DVec3::splat(*radius),
+            Shape::Capsule {
+                half_height,
+                radius,
+            } => DVec3::new(*radius, half_height + radius, *radius),
+            Shape::Cuboid { half_extents } => *half_extents,
+            Shape::Ellipsoid { radii } => *radii,
+            Shape::Convex(hull) => {
+                return hull.points.iter().fold(Aabb::EMPTY, |acc, p| Aabb {
+                    min: acc.min.min(*p),
+                    max: acc.max.max(*p),
+                });
+            }
+            Shape::TriMesh(mesh) => {
+                let a = mesh.local_aabb();
+                return Aabb {
+                    min: a.mins.as_dvec3(),
+                    max: a.maxs.as_dvec3(),
+                };
+            }
+        };
+        Aabb {
+            min: -half,
+            max: half,
+        }
+    }
+
+    /// The world-frame box bounding the shape at `pos` with orientation `rot`.
+    pub fn world_aabb(&self, pos: DVec3, rot: DQuat) -> Aabb {
+        if let Shape::Sphere { radius } = self {
+            return Aabb {
+                min: pos - DVec3::splat(*radius),
+                max: pos + DVec3::splat(*radius),
+            };
+        }
+        let local = self.local_aabb();
+        let centre = (local.min + local.max) * 0.5;
+        let half = (local.max - local.min) * 0.5;
+        // |R| * half bounds the rotated box (Arvo's method).
+        let m = glam::DMat3::from_quat(rot);
+        let abs = glam::DMat3::from_cols(m.x_axis.abs(), m.y_axis.abs(), m.z_axis.abs());
+        let world_half = abs * half;
+        let world_centre = pos + rot * centre;
+        Aabb {
+            min: world_centre - world_half,
+            max: world_centre + world_half,
+        }
+    }
+
+    /// The smallest full dimension (diameter, thickness): the step a swept pair may take
+    /// between two overlap samples without passing through this shape.
+    pub fn min_extent(&self) -> f64 {
+        match self {
+            Shape::Sphere { radius } | Shape::Capsule { radius, .. } => 2.0 * radius,
+            Shape::Cuboid { half_extents } => 2.0 * half_extents.min_element(),
+            Shape::Ellipsoid { radii } => 2.0 * radii.min_element(),
+            Shape::Convex(_) | Shape::TriMesh(_) => {
+                let e = self.local_aabb().extents();
+                // For a mesh, a thin wall may be a single sheet: its thickness is zero, but the
+                // other shape's extent still bounds the sampling step.
+                if matches!(self, Shape::TriMesh(_)) {
+                    0.0
+                } else {
+                    e.min_element()
+                }
+            }
+        }
+    }
+
+    /// Radius of the smallest origin-centred sphere that contains the shape.
+    pub fn bounding_radius(&self) -> f64 {
+        match self {
+            Shape::Sphere { radius } => *radius,
+            Shape::Capsule {
+                half_height,
+                radius,
+            } => half_height + radius,
+            Shape::Cuboid { half_extents } => half_extents.length(),
+            Shape::Ellipsoid { radii } => radii.max_element(),
+            Shape::Convex(hull) => hull.points.iter().map(|p| p.length()).fold(0.0, f64::max),
+            Shape::TriMesh(_) => {
+                let a = self.local_aabb();
+                a.min.length().max(a.max.length())
+            }
+        }
+    }
+
+    /// Volume in m^3 (used for default masses).
+    pub fn volume(&self) -> f64 {
+        use std::f64::consts::PI;
+        match self {
+            Shape::Sphere { radius } => 4.0 / 3.0 * PI * radius.powi(3),
+            Shape::Capsule {
+                half_height,
+                radius,
+            } => PI * radius * radius * (2.0 * half_height + 4.0 / 3.0 * radius),
+            Shape::Cuboid { half_extents } => {
+                8.0 * half_extents.x * half_extents.y * half_extents.z
+            }
+            Shape::Ellipsoid { radii } => 4.0 / 3.0 * PI * radii.x * radii.y * radii.z,
+            Shape::Convex(_) | Shape::TriMesh(_) => {
+                let e = self.local_aabb().extents();
+                e.x * e.y * e.z
+            }
+        }
+    }
+
+    /// The support point in the local frame: the point of the shape farthest along `dir`.
+    /// Defined for convex shapes; used by GJK through [`crate::narrow::general`].
+    pub fn local_support(&self, dir: DVec3) -> DVec3 {
+        match self {
+            Shape::Sphere { radius } => dir.normalize_or(DVec3::Y) * *radius,
+            Shape::Capsule {
+                half_height,
+                radius,
+            } => {
+                let tip = DVec3::new(
+                    0.0,
+                    if dir.y >= 0.0 {
+                        *half_height
+                    } else {
+                        -half_height
+                    },
+                    0.0,
+                );
+                tip + dir.normalize_or(DVec3::Y) * *radius
+            }
+            Shape::Cuboid { half_extents } => DVec3::new(
+                half_extents.x.copysign(dir.x),
+                half_extents.y.copysign(dir.y),
+                half_extents.z.copysign(dir.z),
+            ),
+            Shape::Ellipsoid { radii } => {
+                // p = R^2 d / |R d| for the ellipsoid x^T R^-2 x = 1.
+                let rd = *radii * dir;
+                let n = rd.length();
+                if n > 0.0 {
+                    *radii * rd / n
+                } else {
+                    DVec3::new(0.0, radii.y, 0.0)
+                }
+            }
+            Shape::Convex(hull) => {
+                let mut best = hull.points[0];
+                let mut best_dot = best.dot(dir);
+                for p in &hull.points[1..] {
+                    let d = p.dot(dir);
+                    if d > best_dot {
+                        best = *p;
+                        best_dot = d;
+                    }
+                }
+                best
+            }
+            Shape::TriMesh(_) => DVec3::ZERO,
+        }
+    }
+}

@@ -1,0 +1,971 @@
+//! One tick: inputs, integration, broadphase on swept bounds, time of impact, resolution in
+//! time-of-impact order, begin/end events. The result is a function of the world and the
+//! inputs only; [`Stepper`] holds reusable buffers and counters, never state that changes a
+//! result.
+
+use crate::broadphase::Broadphase;
+use crate::narrow::{self, Contact, Kernel};
+use crate::query::ray;
+use crate::sim::input::{self, TickInput};
+use crate::sim::plan::Plan;
+use crate::sim::shape::{Aabb, Shape};
+use crate::sim::world::{ClassId, Rule, World};
+use crate::toi::analytic::{swept_sphere, SweptSphere};
+use crate::toi::bisect::first_contact;
+use glam::{DQuat, DVec3};
+use impact_protocol::{CollisionEvent, EntityId, EventStatus, Phase, RayResult, Response};
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
+use std::time::{Duration, Instant};
+
+/// The other side of a pair.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Partner {
+    /// A dynamic body (slot).
+    Body(u32),
+    /// A static body (index into the static world).
+    Static(u32),
+    /// The terrain.
+    Terrain,
+}
+
+/// Time spent per stage and work counted, for the last tick and accumulated.
+#[derive(Clone, Debug, Default)]
+pub struct StageStats {
+    /// Applying inputs (and ray queries).
+    pub inputs: Duration,
+    /// Integration and swept bounds.
+    pub integrate: Duration,
+    /// Broadphase.
+    pub broadphase: Duration,
+    /// Narrowphase and time of impact.
+    pub narrowphase: Duration,
+    /// Resolution.
+    pub resolve: Duration,
+    /// Contact bookkeeping and events.
+    pub events: Duration,
+    /// Ticks counted.
+    pub ticks: u64,
+    /// Narrowphase pairs tested in the last tick.
+    pub pairs_tested: u32,
+    /// Impacts resolved in the last tick.
+    pub resolutions: u32,
+    /// Ticks whose resolutions hit the per-tick cap.
+    pub resolution_cap_hits: u64,
+    /// Overlap tests spent by bisection and sampling, last tick.
+    pub toi_tests: u32,
+}
+
+impl StageStats {
+    /// `(name, total time)` per stage, in tick order.
+    pub fn stages(&self) -> [(&'static str, Duration); 6] {
+        [
+            ("inputs", self.inputs),
+            ("integrate", self.integrate),
+            ("broadphase", self.broadphase),
+            ("narrowphase", self.narrowphase),
+            ("resolve", self.resolve),
+            ("events", self.events),
+        ]
+    }
+}
+
+/// What one tick produced besides the new state.
+#[derive(Clone, Debug, Default)]
+pub struct TickOutput {
+    /// Collision events in `(toi, a, b, phase)` order.
+    pub events: Vec<CollisionEvent>,
+    /// Results of the tick's hitscan rays, in input order.
+    pub rays: Vec<RayResult>,
+    /// Inputs (or actions) that could not apply, with why: `(client, seq, reason)`.
+    pub skipped: Vec<input::Skipped>,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Impact {
+    t: f64,
+    a: u32,
+    b: Partner,
+    ver_a: u32,
+    ver_b: u32,
+    /// Contact at the reported pose (touching or penetrating), `a` at the origin.
+    contact: Contact,
+    /// Penetrating at the start of the interval (no time of impact to find).
+    started_inside: bool,
+}
+
+impl PartialEq for Impact {
+    fn eq(&self, other: &Self) -> bool {
+        self.cmp(other) == Ordering::Equal
+    }
+}
+impl Eq for Impact {}
+impl PartialOrd for Impact {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl Ord for Impact {
+    /// Reversed so the max-heap pops the earliest impact; ties broken by the pair.
+    fn cmp(&self, other: &Self) -> Ordering {
+        other
+            .t
+            .total_cmp(&self.t)
+            .then_with(|| (other.a, other.b).cmp(&(self.a, self.b)))
+    }
+}
+
+/// One pair's story this tick, for events.
+#[derive(Clone, Copy, Debug)]
+struct PairRecord {
+    key: (EntityId, EntityId),
+    t: f64,
+    point: DVec3,
+    normal_lo_hi: DVec3,
+    depth: f64,
+    closing: f64,
+    response: Response,
+}
+
+/// The stepper: plan, broadphase and every buffer a tick needs, reused across ticks.
+#[derive(Debug)]
+pub struct Stepper {
+    plan: Plan,
+    broadphase: Broadphase,
+    /// Stage times and counters.
+    pub stats: StageStats,
+    profile: bool,
+    aabbs: Vec<Aabb>,
+    base: Vec<DVec3>,
+    t0: Vec<f64>,
+    version: Vec<u32>,
+    moving: Vec<bool>,
+    dead: Vec<bool>,
+    clip: Vec<[DVec3; 3]>,
+    clip_len: Vec<u8>,
+    pairs: Vec<(u32, u32)>,
+    candidates: Vec<(u32, Partner)>,
+    heap: BinaryHeap<Impact>,
+    records: Vec<PairRecord>,
+    touching_now: Vec<(EntityId, EntityId)>,
+    query_buf: Vec<u32>,
+    static_buf: Vec<u32>,
+}
+
+impl Stepper {
+    /// A stepper for `plan`. With `profile`, stage times are measured (the clock is read only
+    /// for the statistics; it never reaches a result).
+    pub fn new(plan: Plan, profile: bool) -> Stepper {
+        Stepper {
+            broadphase: Broadphase::new(plan.broadphase),
+            plan,
+            stats: StageStats::default(),
+            profile,
+            aabbs: Vec::new(),
+            base: Vec::new(),
+            t0: Vec::new(),
+            version: Vec::new(),
+            moving: Vec::new(),
+            dead: Vec::new(),
+            clip: Vec::new(),
+            clip_len: Vec::new(),
+            pairs: Vec::new(),
+            candidates: Vec::new(),
+            heap: BinaryHeap::new(),
+            records: Vec::new(),
+            touching_now: Vec::new(),
+            query_buf: Vec::new(),
+            static_buf: Vec::new(),
+        }
+    }
+
+    /// The plan in use.
+    pub fn plan(&self) -> &Plan {
+        &self.plan
+    }
+
+    fn lap(
+        &self,
+        since: &mut Option<Instant>,
+        slot: fn(&mut StageStats) -> &mut Duration,
+        stats: &mut StageStats,
+    ) {
+        if let Some(start) = since {
+            let now = Instant::now();
+            *slot(stats) += now - *start;
+            *start = now;
+        }
+    }
+
+    /// Advances `w` by one tick with `inputs` (any order: they are applied sorted by client and
+    /// sequence number). Events and ray results go to `out` (cleared first).
+    pub fn step(&mut self, w: &mut World, inputs: &[TickInput], out: &mut TickOutput) {
+        out.events.clear();
+        out.rays.clear();
+        out.skipped.clear();
+        let mut stats = std::mem::take(&mut self.stats);
+        let mut clock = self.profile.then(Instant::now);
+
+        // 1. Inputs, then hitscan against the world as it stands at the start of the tick.
+        input::apply(w, inputs, out);
+        self.lap(&mut clock, |s| &mut s.inputs, &mut stats);
+
+        // 2. Integrate: gravity, then constant velocity over the step.
+        let cfg = w.config.clone();
+        let dt = cfg.dt;
+        let n = w.bodies.len();
+        let b = &mut w.bodies;
+        if self.plan.gravity {
+            for i in 0..n {
+                if b.inv_mass[i] > 0.0 && cfg.classes.props[b.class[i].0 as usize].gravity {
+                    b.vel[i] += cfg.gravity * dt;
+                }
+            }
+        }
+        let slop = cfg.contact_slop_m;
+        self.aabbs.clear();
+        self.base.clear();
+        self.t0.clear();
+        self.version.clear();
+        self.moving.clear();
+        self.dead.clear();
+        self.clip_len.clear();
+        self.clip.resize(n, [DVec3::ZERO; 3]);
+        for i in 0..n {
+            let p0 = b.pos[i];
+            let p1 = p0 + b.vel[i] * dt;
+            let a0 = b.shape[i].world_aabb(p0, b.rot[i]);
+            let a1 = a0.translated(p1 - p0);
+            self.aabbs.push(a0.union(&a1).inflated(slop));
+            self.base.push(p0);
+            self.t0.push(0.0);
+            self.version.push(0);
+            self.moving.push(b.vel[i] != DVec3::ZERO);
+            self.dead.push(false);
+            self.clip_len.push(0);
+        }
+        self.lap(&mut clock, |s| &mut s.integrate, &mut stats);
+
+        // 3. Broadphase: dynamic pairs, then statics and terrain for moving bodies.
+        self.broadphase.pairs(&self.aabbs, &mut self.pairs);
+        self.candidates.clear();
+        for &(i, j) in &self.pairs {
+            if !self.moving[i as usize] && !self.moving[j as usize] {
+                continue; // both resting: nothing can change between them
+            }
+            if cfg.classes.rule(b.class[i as usize], b.class[j as usize]) == Rule::Ignore {
+                continue;
+            }
+            self.candidates.push((i, Partner::Body(j)));
+        }
+        if self.plan.statics || self.plan.terrain {
+            for i in 0..n {
+                if !self.moving[i] {
+                    continue;
+                }
+                self.static_candidates(w, i as u32);
+            }
+        }
+        self.lap(&mut clock, |s| &mut s.broadphase, &mut stats);
+
+        // 4. Narrowphase and time of impact for every candidate.
+        stats.pairs_tested = self.candidates.len() as u32;
+        stats.toi_tests = 0;
+        self.heap.clear();
+        for k in 0..self.candidates.len() {
+            let (i, p) = self.candidates[k];
+            if let Some(imp) = self.impact(w, i, p, 0.0, &mut stats.toi_tests) {
+                self.heap.push(imp);
+            }
+        }
+        self.lap(&mut clock, |s| &mut s.narrowphase, &mut stats);
+
+        // 5. Resolve in time-of-impact order; a body whose path changes is re-tested against
+        //    everything its new path can reach.
+        self.records.clear();
+        let mut resolutions = 0u32;
+        while let Some(imp) = self.heap.pop() {
+            let i = imp.a as usize;
+            if self.dead[i] || matches!(imp.b, Partner::Body(j) if self.dead[j as usize]) {
+                continue;
+            }
+            let ver_b = match imp.b {
+                Partner::Body(j) => self.version[j as usize],
+                _ => 0,
+            };
+            if imp.ver_a != self.version[i] || imp.ver_b != ver_b {
+                // A path changed since this was computed: test again from the later change.
+                let from = match imp.b {
+                    Partner::Body(j) => self.t0[i].max(self.t0[j as usize]),
+                    _ => self.t0[i],
+                };
+                if let Some(again) = self.impact(w, imp.a, imp.b, from, &mut stats.toi_tests) {
+                    self.heap.push(again);
+                }
+                continue;
+            }
+            if resolutions >= cfg.max_resolutions_per_tick {
+                stats.resolution_cap_hits += 1;
+                break;
+            }
+            resolutions += 1;
+            let changed = self.resolve(w, &imp);
+            for body in changed.into_iter().flatten() {
+                self.requery(w, body, &mut stats.toi_tests);
+            }
+        }
+        stats.resolutions = resolutions;
+        self.lap(&mut clock, |s| &mut s.resolve, &mut stats);
+
+        // 6. Final positions, touching set, events, removals.
+        let b = &mut w.bodies;
+        for i in 0..n {
+            b.pos[i] = self.base[i] + b.vel[i] * ((1.0 - self.t0[i]) * dt);
+        }
+        self.finish_events(w, out);
+        w.bodies.remove_flagged(&self.dead);
+        w.tick = w.tick.next();
+        self.lap(&mut clock, |s| &mut s.events, &mut stats);
+        stats.ticks += 1;
+        self.stats = stats;
+    }
+
+    fn static_candidates(&mut self, w: &World, i: u32) {
+        let b = &w.bodies;
+        let aabb = self.aabbs[i as usize];
+        if self.plan.statics {
+            w.statics.index.query(&aabb, &mut self.static_buf);
+            for &s in &self.static_buf {
+                if w.config
+                    .classes
+                    .rule(b.class[i as usize], w.statics.class[s as usize])
+                    != Rule::Ignore
+                {
+                    self.candidates.push((i, Partner::Static(s)));
+                }
+            }
+        }
+        if let Some(t) = &w.statics.terrain {
+            if t.field.aabb().overlaps(&aabb)
+                && w.config.classes.rule(b.class[i as usize], t.class) != Rule::Ignore
+            {
+                self.candidates.push((i, Partner::Terrain));
+            }
+        }
+    }
+
+    /// Position of dynamic body `i` at step fraction `t` along its current path.
+    #[inline]
+    fn pos_at(&self, w: &World, i: usize, t: f64) -> DVec3 {
+        self.base[i] + w.bodies.vel[i] * ((t - self.t0[i]) * w.config.dt)
+    }
+
+    /// Position and velocity of the partner at `t`.
+    #[inline]
+    fn partner_at(&self, w: &World, p: Partner, t: f64) -> (DVec3, DVec3) {
+        match p {
+            Partner::Body(j) => (self.pos_at(w, j as usize, t), w.bodies.vel[j as usize]),
+            Partner::Static(s) => (w.statics.pos[s as usize], DVec3::ZERO),
+            Partner::Terrain => (DVec3::ZERO, DVec3::ZERO),
+        }
+    }
+
+    /// Contact between body `i` at `pa` and the partner at `pb` (`a` at the origin).
+    fn contact(
+        &self,
+        w: &World,
+        i: usize,
+        pa: DVec3,
+        p: Partner,
+        pb: DVec3,
+        margin: f64,
+    ) -> Option<Contact> {
+        let b = &w.bodies;
+        let (sa, ra) = (&b.shape[i], b.rot[i]);
+        match p {
+            Partner::Body(j) => convex_contact(
+                &self.plan,
+                sa,
+                ra,
+                &b.shape[j as usize],
+                b.rot[j as usize],
+                pb - pa,
+                margin,
+            ),
+            Partner::Static(s) => {
+                let s = s as usize;
+                convex_contact(
+                    &self.plan,
+                    sa,
+                    ra,
+                    &w.statics.shape[s],
+                    w.statics.rot[s],
+                    pb - pa,
+                    margin,
+                )
+            }
+            Partner::Terrain => {
+                let t = w.statics.terrain.as_ref()?;
+                crate::narrow::terrain_contact(sa, ra, pa, &t.field, margin)
+            }
+        }
+    }
+
+    /// The first contact of body `a` with `p` in `[from, 1]`, if any.
+    fn impact(&self, w: &World, a: u32, p: Partner, from: f64, tests: &mut u32) -> Option<Impact> {
+        let i = a as usize;
+        let b = &w.bodies;
+        let dt = w.config.dt;
+        let pa = self.pos_at(w, i, from);
+        let (pb, vb) = self.partner_at(w, p, from);
+        let va = b.vel[i];
+        let ver_a = self.version[i];
+        let ver_b = match p {
+            Partner::Body(j) => self.version[j as usize],
+            _ => 0,
+        };
+        let mk = |t: f64, contact: Contact, started_inside: bool| Impact {
+            t,
+            a,
+            b: p,
+            ver_a,
+            ver_b,
+            contact,
+            started_inside,
+        };
+        // Already overlapping at the start of the interval: depth and normal now.
+        if let Some(c) = self.contact(w, i, pa, p, pb, 0.0).filter(|c| c.depth > 0.0) {
+            return Some(mk(from, c, true));
+        }
+        let span = 1.0 - from;
+        let rel = (vb - va) * (dt * span); // b's displacement relative to a over [from, 1]
+        if rel == DVec3::ZERO {
+            return None;
+        }
+        let d0 = pb - pa;
+        // Spheres: the exact swept-sphere time of impact.
+        if let (Partner::Body(_) | Partner::Static(_), true) = (p, self.plan.analytic_spheres) {
+            let sb = match p {
+                Partner::Body(j) => &b.shape[j as usize],
+                Partner::Static(s) => &w.statics.shape[s as usize],
+                Partner::Terrain => unreachable!(),
+            };
+            if let (Shape::Sphere { radius: r1 }, Shape::Sphere { radius: r2 }) = (&b.shape[i], sb)
+            {
+                // DESIGN.md's A = P1 - Q1 and B = (P2 - P1) - (Q2 - Q1), with P = a and Q = b.
+                return match swept_sphere(-d0, -rel, r1 + r2) {
+                    SweptSphere::Hit(s) => {
+                        let d = d0 + rel * s;
+                        let c = narrow::sphere_sphere::contact(*r1, *r2, d)?;
+                        Some(mk(
+                            from + span * s,
+                            Contact {
+                                depth: c.depth.max(0.0),
+                                ..c
+                            },
+                            false,
+                        ))
+                    }
+                    _ => None,
+                };
+            }
+        }
+        // Overlap testing with bisection; fast pairs are sampled so they cannot tunnel.
+        let travel = rel.length();
+        let extent_b = match p {
+            Partner::Body(j) => b.shape[j as usize].min_extent(),
+            Partner::Static(s) => w.statics.shape[s as usize].min_extent(),
+            Partner::Terrain => 0.0,
+        };
+        let step_m = if self.plan.ccd_sampling {
+            0.5 * (b.shape[i].min_extent() + extent_b)
+        } else {
+            f64::INFINITY
+        };
+        let overlaps = |t: f64| {
+            let qa = pa + va * ((t - from) * dt);
+            let qb = pb + vb * ((t - from) * dt);
+            self.contact(w, i, qa, p, qb, 0.0)
+                .is_some_and(|c| c.depth > 0.0)
+        };
+        let bracket = first_contact(from, travel, step_m, &w.config.bisect, overlaps)?;
+        *tests += bracket.tests;
+        // Report the pose just before contact (lo); the normal and point come from the first
+        // overlapping pose (hi), where the contact is defined.
+        let qa = pa + va * ((bracket.hi - from) * dt);
+        let qb = pb + vb * ((bracket.hi - from) * dt);
+        let c = self.contact(w, i, qa, p, qb, 0.0)?;
+        let shift = va * ((bracket.hi - bracket.lo) * dt);
+        Some(mk(
+            bracket.lo,
+            Contact {
+                point: c.point + shift,
+                depth: 0.0,
+                ..c
+            },
+            false,
+        ))
+    }
+
+    /// Applies the response for one impact. Returns the bodies whose paths changed.
+    fn resolve(&mut self, w: &mut World, imp: &Impact) -> [Option<u32>; 2] {
+        let cfg = w.config.clone();
+        let i = imp.a as usize;
+        let t = imp.t;
+        let (class_b, id_b, inv_mb) = match imp.b {
+            Partner::Body(j) => (
+                w.bodies.class[j as usize],
+                w.bodies.id[j as usize],
+                w.bodies.inv_mass[j as usize],
+            ),
+            Partner::Static(s) => (w.statics.class[s as usize], w.statics.id[s as usize], 0.0),
+            Partner::Terrain => {
+                let t = w
+                    .statics
+                    .terrain
+                    .as_ref()
+                    .expect("terrain partner implies terrain");
+                (t.class, t.id, 0.0)
+            }
+        };
+        let class_a = w.bodies.class[i];
+        let rule = cfg.classes.rule(class_a, class_b);
+        let pa = self.pos_at(w, i, t);
+        let (pb, vb) = self.partner_at(w, imp.b, t);
+        let va = w.bodies.vel[i];
+        let n = imp.contact.normal;
+        let closing = -(vb - va).dot(n);
+        let inv_ma = w.bodies.inv_mass[i];
+        let response = response_of(rule);
+        self.records.push(PairRecord {
+            key: (w.bodies.id[i], id_b),
+            t,
+            point: pa + imp.contact.point,
+            normal_lo_hi: n,
+            depth: imp.contact.depth,
+            closing,
+            response,
+        });
+        let mut changed = [None, None];
+        let j = match imp.b {
+            Partner::Body(j) => Some(j as usize),
+            _ => None,
+        };
+        let mut set_path = |this: &mut Stepper,
+                            w: &mut World,
+                            body: usize,
+                            new_pos: DVec3,
+                            new_vel: DVec3,
+                            slot: usize| {
+            this.base[body] = new_pos;
+            this.t0[body] = t;
+            w.bodies.vel[body] = new_vel;
+            this.version[body] += 1;
+            this.moving[body] = true;
+            changed[slot] = Some(body as u32);
+        };
+        match rule {
+            Rule::Ignore | Rule::Trigger => {}
+            Rule::Destroy {
+                first,
+                second,
+                restitution,
+            } => {
+                if first {
+                    self.dead[i] = true;
+                    self.version[i] += 1;
+                }
+                if let (true, Some(j)) = (second, j) {
+                    self.dead[j] = true;
+                    self.version[j] += 1;
+                }
+                // The survivor bounces off the destroyed body as off a wall, if asked to.
+                if let (Some(e), true) = (restitution, closing > 0.0) {
+                    if !first && inv_ma > 0.0 {
+                        set_path(self, w, i, pa, va - n * ((1.0 + e) * va.dot(n).max(0.0)), 0);
+                    } else if let (false, Some(j)) = (second, j) {
+                        if inv_mb > 0.0 {
+                            set_path(self, w, j, pb, vb - n * ((1.0 + e) * vb.dot(n).min(0.0)), 1);
+                        }
+                    }
+                }
+            }
+            Rule::Bounce { .. } | Rule::Slide | Rule::Stop => {
+                let inv_sum = inv_ma + inv_mb;
+                if inv_sum == 0.0 {
+                    return changed; // two immovable bodies
+                }
+                // Push apart what already overlaps, in proportion to the inverse masses.
+                let push = if imp.started_inside {
+                    n * imp.contact.depth
+                } else {
+                    DVec3::ZERO
+                };
+                let new_pa = pa - push * (inv_ma / inv_sum);
+                let new_pb = pb + push * (inv_mb / inv_sum);
+                let (mut new_va, mut new_vb) = (va, vb);
+                if closing > 0.0 {
+                    match rule {
+                        Rule::Bounce { restitution } => {
+                            // Impulse along n: dv = -(1 + e) (v.n) n, shared by inverse mass.
+                            let jn = (1.0 + restitution) * closing / inv_sum;
+                            new_va = va - n * (jn * inv_ma);
+                            new_vb = vb + n * (jn * inv_mb);
+                        }
+                        Rule::Slide => {
+                            let jn = closing / inv_sum;
+                            new_va = va - n * (jn * inv_ma);
+                            new_vb = vb + n * (jn * inv_mb);
+                            if inv_mb == 0.0 {
+                                new_va = self.clip_slide(i, -n, new_va);
+                            }
+                        }
+                        Rule::Stop => {
+                            if inv_ma > 0.0 {
+                                new_va = DVec3::ZERO;
+                            }
+                            if inv_mb > 0.0 {
+                                new_vb = DVec3::ZERO;
+                            }
+                        }
+                        _ => {}
+                    }
+                }
+                if inv_ma > 0.0 {
+                    set_path(self, w, i, new_pa, new_va, 0);
+                }
+                if let (Some(j), true) = (j, inv_mb > 0.0) {
+                    set_path(self, w, j, new_pb, new_vb, 1);
+                }
+            }
+        }
+        changed
+    }
+
+    /// Slides body `i` along every wall plane it touched this tick (up to three): its velocity
+    /// keeps no component into any of them. Two planes leave motion along their crease; three
+    /// stop it. `wall_normal` points out of the wall, towards the body.
+    fn clip_slide(&mut self, i: usize, wall_normal: DVec3, v: DVec3) -> DVec3 {
+        let len = self.clip_len[i] as usize;
+        if len < 3 {
+            self.clip[i][len] = wall_normal;
+            self.clip_len[i] += 1;
+        }
+        let planes = &self.clip[i][..self.clip_len[i] as usize];
+        let mut out = v;
+        for (k, n) in planes.iter().enumerate() {
+            let vn = out.dot(*n);
+            if vn < 0.0 {
+                out -= *n * vn;
+                // Clipping against this plane may push back into an earlier one: then only the
+                // crease between them is free.
+                for m in planes.iter().take(k) {
+                    if out.dot(*m) < -1e-12 {
+                        let crease = n.cross(*m).normalize_or_zero();
+                        out = crease * crease.dot(v);
+                        if planes.len() >= 3 {
+                            return DVec3::ZERO;
+                        }
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// A body's path changed mid-step: test its new path against everything it can reach.
+    fn requery(&mut self, w: &World, body: u32, tests: &mut u32) {
+        let i = body as usize;
+        if self.dead[i] {
+            return;
+        }
+        let b = &w.bodies;
+        let t = self.t0[i];
+        let p_now = self.base[i];
+        let p_end = self.pos_at(w, i, 1.0);
+        let a0 = b.shape[i].world_aabb(p_now, b.rot[i]);
+        let swept = a0
+            .union(&a0.translated(p_end - p_now))
+            .inflated(w.config.contact_slop_m);
+        // Other dynamic bodies: their full-step boxes still bound them unless they changed too,
+        // in which case they were (or will be) re-queried themselves.
+        let mut buf = std::mem::take(&mut self.query_buf);
+        self.broadphase.query(&self.aabbs, &swept, &mut buf);
+        for &j in &buf {
+            if j == body || self.dead[j as usize] {
+                continue;
+            }
+            if w.config.classes.rule(b.class[i], b.class[j as usize]) == Rule::Ignore {
+                continue;
+            }
+            let (lo, hi) = (body.min(j), body.max(j));
+            let from = t.max(self.t0[j as usize]);
+            if let Some(imp) = self.impact(w, lo, Partner::Body(hi), from, tests) {
+                self.heap.push(imp);
+            }
+        }
+        self.query_buf = buf;
+        self.aabbs[i] = self.aabbs[i].union(&swept);
+        if self.plan.statics || self.plan.terrain {
+            let before = self.candidates.len();
+            let saved = self.aabbs[i];
+            self.aabbs[i] = swept;
+            self.static_candidates(w, body);
+            self.aabbs[i] = saved;
+            for k in before..self.candidates.len() {
+                let (a, p) = self.candidates[k];
+                if let Some(imp) = self.impact(w, a, p, t, tests) {
+                    self.heap.push(imp);
+                }
+            }
+        }
+        // Make sure the pair list used for end-of-tick touching includes new partners.
+        for &j in &self.query_buf {
+            if j != body && !self.dead[j as usize] {
+                let (lo, hi) = (body.min(j), body.max(j));
+                self.candidates.push((lo, Partner::Body(hi)));
+            }
+        }
+    }
+
+    /// Builds the touching set at the end of the tick and turns the tick's story into begin,
+    /// end and destroy events.
+    fn finish_events(&mut self, w: &mut World, out: &mut TickOutput) {
+        let cfg = w.config.clone();
+        let slop = cfg.contact_slop_m;
+        let tick = w.tick;
+        let b = &w.bodies;
+        // Touching at the end: every candidate pair still alive, within the slop.
+        self.candidates.sort_unstable();
+        self.candidates.dedup();
+        self.touching_now.clear();
+        let mut end_records: Vec<PairRecord> = Vec::new();
+        for &(a, p) in &self.candidates {
+            let i = a as usize;
+            if self.dead[i] || matches!(p, Partner::Body(j) if self.dead[j as usize]) {
+                continue;
+            }
+            let (id_b, class_b) = match p {
+                Partner::Body(j) => (b.id[j as usize], b.class[j as usize]),
+                Partner::Static(s) => (w.statics.id[s as usize], w.statics.class[s as usize]),
+                Partner::Terrain => {
+                    let t = w.statics.terrain.as_ref().expect("terrain");
+                    (t.id, t.class)
+                }
+            };
+            let pa = b.pos[i];
+            let pb = match p {
+                Partner::Body(j) => b.pos[j as usize],
+                Partner::Static(s) => w.statics.pos[s as usize],
+                Partner::Terrain => DVec3::ZERO,
+            };
+            if let Some(c) = self.contact(w, i, pa, p, pb, slop) {
+                let key = ordered(b.id[i], id_b);
+                self.touching_now.push(key);
+                let vb = match p {
+                    Partner::Body(j) => b.vel[j as usize],
+                    _ => DVec3::ZERO,
+                };
+                end_records.push(PairRecord {
+                    key: (b.id[i], id_b),
+                    t: 1.0,
+                    point: pa + c.point,
+                    normal_lo_hi: c.normal,
+                    depth: c.depth.max(0.0),
+                    closing: -(vb - b.vel[i]).dot(c.normal),
+                    response: response_of(cfg.classes.rule(b.class[i], class_b)),
+                });
+            }
+        }
+        // Resting pairs were not candidates: they keep touching while both ends stay put.
+        let still = |id: EntityId, dead: &[bool], moving: &[bool]| match b.slot(id) {
+            Some(s) => !dead[s] && !moving[s],
+            None => true, // static or terrain
+        };
+        for &(x, y) in &w.touching {
+            if still(x, &self.dead, &self.moving) && still(y, &self.dead, &self.moving) {
+                self.touching_now.push((x, y));
+            }
+        }
+        self.touching_now.sort_unstable();
+        self.touching_now.dedup();
+
+        // Impacts: the first one per pair.
+        self.records.sort_by(|p, q| {
+            ordered(p.key.0, p.key.1)
+                .cmp(&ordered(q.key.0, q.key.1))
+                .then(p.t.total_cmp(&q.t))
+        });
+        let prev = &w.touching;
+        let was = |k: (EntityId, EntityId)| prev.binary_search(&k).is_ok();
+        let now = |k: (EntityId, EntityId)| self.touching_now.binary_search(&k).is_ok();
+        let mut last_key = None;
+        for r in &self.records {
+            let key = ordered(r.key.0, r.key.1);
+            if last_key == Some(key) {
+                continue;
+            }
+            last_key = Some(key);
+            if !was(key) {
+                out.events.push(event(tick, r, Phase::Begin));
+                if !now(key) {
+                    out.events.push(event(tick, r, Phase::End));
+                }
+            } else if r.response == Response::Destroy {
+                out.events.push(event(tick, r, Phase::End));
+            }
+        }
+        let impacted = |k: (EntityId, EntityId)| {
+            self.records
+                .binary_search_by(|r| ordered(r.key.0, r.key.1).cmp(&k).then(Ordering::Greater))
+                .unwrap_err()
+        };
+        // Touching now without an impact this tick (slid or grew into contact): a begin at the
+        // end of the step.
+        for r in &end_records {
+            let key = ordered(r.key.0, r.key.1);
+            let i = impacted(key);
+            let had_impact = self
+                .records
+                .get(i)
+                .is_some_and(|x| ordered(x.key.0, x.key.1) == key);
+            if !was(key) && !had_impact {
+                out.events.push(event(tick, r, Phase::Begin));
+            }
+        }
+        // Touching before, not now, and no impact already closed it: an end.
+        for &key in prev.iter() {
+            if now(key) {
+                continue;
+            }
+            let i = impacted(key);
+            if self
+                .records
+                .get(i)
+                .is_some_and(|x| ordered(x.key.0, x.key.1) == key)
+            {
+                // Its impact this tick emitted the end if the pair separated (destroy or bounce).
+                let r = self.records[i];
+                if r.response != Response::Destroy {
+                    out.events.push(event(tick, &r, Phase::End));
+                }
+                continue;
+            }
+            out.events
+                .push(end_without_contact(w, tick, key, &self.dead));
+        }
+        out.events.sort_by(|x, y| {
+            x.toi
+                .total_cmp(&y.toi)
+                .then(x.a.cmp(&y.a))
+                .then(x.b.cmp(&y.b))
+                .then(x.phase.cmp(&y.phase))
+        });
+        out.events.dedup_by(|x, y| x.key() == y.key());
+        w.touching.clear();
+        w.touching.extend_from_slice(&self.touching_now);
+    }
+}
+
+/// Convex contact with the plan's kernel choice (analytic, or GJK when the plan forces the
+/// general path). Triangle meshes always take the mesh kernel.
+fn convex_contact(
+    plan: &Plan,
+    a: &Shape,
+    ra: DQuat,
+    b: &Shape,
+    rb: DQuat,
+    d: DVec3,
+    margin: f64,
+) -> Option<Contact> {
+    if plan.force_general && Kernel::for_pair(a.kind(), b.kind()) != Kernel::Mesh {
+        return narrow::general::contact(a, ra, b, rb, d, margin);
+    }
+    narrow::contact(a, ra, b, rb, d, margin)
+}
+
+fn ordered(a: EntityId, b: EntityId) -> (EntityId, EntityId) {
+    if a <= b {
+        (a, b)
+    } else {
+        (b, a)
+    }
+}
+
+fn response_of(rule: Rule) -> Response {
+    match rule {
+        Rule::Ignore | Rule::Trigger => Response::Trigger,
+        Rule::Bounce { .. } => Response::Bounce,
+        Rule::Slide => Response::Slide,
+        Rule::Stop => Response::Stop,
+        Rule::Destroy { .. } => Response::Destroy,
+    }
+}
+
+fn event(tick: impact_protocol::Tick, r: &PairRecord, phase: Phase) -> CollisionEvent {
+    // Events name the lower id first, with the normal pointing from it to the other.
+    let (a, b, normal) = if r.key.0 <= r.key.1 {
+        (r.key.0, r.key.1, r.normal_lo_hi)
+    } else {
+        (r.key.1, r.key.0, -r.normal_lo_hi)
+    };
+    CollisionEvent {
+        tick,
+        toi: r.t.clamp(0.0, 1.0),
+        a,
+        b,
+        point: r.point.to_array(),
+        normal: normal.to_array(),
+        depth_m: r.depth,
+        closing_speed_mps: r.closing,
+        phase,
+        response: r.response,
+        status: EventStatus::Provisional,
+    }
+}
+
+/// An end event for a pair that moved apart so far this tick that it was not even a broadphase
+/// candidate: the point is between the two centres, the normal along them.
+fn end_without_contact(
+    w: &World,
+    tick: impact_protocol::Tick,
+    key: (EntityId, EntityId),
+    dead: &[bool],
+) -> CollisionEvent {
+    let pos = |id: EntityId| -> (DVec3, Option<ClassId>) {
+        if let Some(s) = w.bodies.slot(id) {
+            return (w.bodies.pos[s], Some(w.bodies.class[s]));
+        }
+        if let Ok(s) = w.statics.id.binary_search(&id) {
+            return (w.statics.pos[s], Some(w.statics.class[s]));
+        }
+        (DVec3::ZERO, None)
+    };
+    let (pa, ca) = pos(key.0);
+    let (pb, cb) = pos(key.1);
+    let destroyed = [key.0, key.1]
+        .iter()
+        .any(|id| w.bodies.slot(*id).is_some_and(|s| dead[s]));
+    let response = match (ca, cb) {
+        _ if destroyed => Response::Destroy,
+        (Some(a), Some(b)) => response_of(w.config.classes.rule(a, b)),
+        _ => Response::Trigger,
+    };
+    CollisionEvent {
+        tick,
+        toi: 1.0,
+        a: key.0,
+        b: key.1,
+        point: ((pa + pb) * 0.5).to_array(),
+        normal: (pb - pa).normalize_or(DVec3::Y).to_array(),
+        depth_m: 0.0,
+        closing_speed_mps: 0.0,
+        phase: Phase::End,
+        response,
+        status: EventStatus::Provisional,
+    }
+}
+
+/// Ray results for the tick are computed by [`input::apply`] through [`ray`].
+#[allow(unused_imports)]
+use ray as _ray_doc;

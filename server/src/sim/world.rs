@@ -1,0 +1,386 @@
+//! The world state: dynamic bodies as struct-of-arrays, the immutable static part (shared by
+//! every snapshot through an `Arc`), and the class table that decides responses.
+
+use crate::broadphase::StaticIndex;
+use crate::sim::shape::{Aabb, Shape};
+use crate::terrain::heightfield::HeightField;
+use crate::toi::bisect::BisectConfig;
+use glam::{DQuat, DVec3};
+use impact_protocol::{ClientId, EntityId, Tick};
+use std::sync::Arc;
+
+/// Index into the class table.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct ClassId(pub u16);
+
+/// What happens when two classes meet. Stored per ordered pair of classes; `Destroy` names the
+/// bodies that go, relative to that order.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Rule {
+    /// No test at all: the pair is filtered out before the narrowphase.
+    Ignore,
+    /// An event only; bodies pass through each other.
+    Trigger,
+    /// Reflect velocities along the normal with this restitution (0 = inelastic, 1 = elastic).
+    Bounce {
+        /// Coefficient of restitution in [0, 1].
+        restitution: f64,
+    },
+    /// Remove the approaching normal velocity and keep moving tangentially for the rest of the
+    /// step (players on walls).
+    Slide,
+    /// The moving bodies stop at the contact.
+    Stop,
+    /// Remove the first and/or second body.
+    Destroy {
+        /// Remove the body of the row class.
+        first: bool,
+        /// Remove the body of the column class.
+        second: bool,
+        /// If set, the surviving body bounces off the destroyed one with this restitution
+        /// (breakout's ball off a brick); if not, it passes on.
+        restitution: Option<f64>,
+    },
+}
+
+impl Rule {
+    /// The same rule seen from the other body's side.
+    pub fn swapped(self) -> Rule {
+        match self {
+            Rule::Destroy {
+                first,
+                second,
+                restitution,
+            } => Rule::Destroy {
+                first: second,
+                second: first,
+                restitution,
+            },
+            other => other,
+        }
+    }
+}
+
+/// Per-class properties.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ClassProps {
+    /// Class name from the scene.
+    pub name: String,
+    /// Static geometry: never moves, never tested against other static geometry.
+    pub is_static: bool,
+    /// Largest speed an input may set, m/s.
+    pub max_speed_mps: f64,
+    /// Whether gravity applies.
+    pub gravity: bool,
+    /// Density for bodies spawned without a mass, kg/m^3.
+    pub density_kg_m3: f64,
+}
+
+/// The class table: properties and the response rule for every ordered pair.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Classes {
+    /// Properties by [`ClassId`].
+    pub props: Vec<ClassProps>,
+    rules: Vec<Rule>,
+}
+
+impl Classes {
+    /// A table where every pair follows `default`.
+    pub fn new(props: Vec<ClassProps>, default: Rule) -> Classes {
+        let n = props.len();
+        Classes {
+            props,
+            rules: vec![default; n * n],
+        }
+    }
+
+    /// Sets the rule for `(a, b)` and its mirror for `(b, a)`.
+    pub fn set_rule(&mut self, a: ClassId, b: ClassId, rule: Rule) {
+        let n = self.props.len();
+        self.rules[a.0 as usize * n + b.0 as usize] = rule;
+        self.rules[b.0 as usize * n + a.0 as usize] = rule.swapped();
+    }
+
+    /// The rule when a body of class `a` meets one of class `b`.
+    #[inline]
+    pub fn rule(&self, a: ClassId, b: ClassId) -> Rule {
+        self.rules[a.0 as usize * self.props.len() + b.0 as usize]
+    }
+
+    /// Looks a class up by name.
+    pub fn by_name(&self, name: &str) -> Option<ClassId> {
+        self.props
+            .iter()
+            .position(|p| p.name == name)
+            .map(|i| ClassId(i as u16))
+    }
+
+    /// Number of classes.
+    pub fn len(&self) -> usize {
+        self.props.len()
+    }
+
+    /// Whether the table is empty.
+    pub fn is_empty(&self) -> bool {
+        self.props.is_empty()
+    }
+}
+
+/// Simulation settings fixed for a run.
+#[derive(Clone, Debug)]
+pub struct SimConfig {
+    /// Ticks per second.
+    pub tick_hz: u32,
+    /// Step length, seconds (`1 / tick_hz`; exact in binary for powers of two such as 64).
+    pub dt: f64,
+    /// Gravity, m/s^2, world frame.
+    pub gravity: DVec3,
+    /// Classes and responses.
+    pub classes: Classes,
+    /// Time-of-impact search settings.
+    pub bisect: BisectConfig,
+    /// Two bodies closer than this (m) count as touching for begin/end events.
+    pub contact_slop_m: f64,
+    /// Most contact resolutions per tick (bounds the work a pathological pile can cause).
+    pub max_resolutions_per_tick: u32,
+    /// Most bodies the world may hold (spawns beyond it are refused).
+    pub max_bodies: u32,
+    /// Rollback window in ticks.
+    pub window_ticks: u32,
+    /// How far ahead of the server an input's tick may be, ticks.
+    pub input_lead_ticks: u32,
+    /// The class of client-spawned projectiles (`None`: spawning is refused).
+    pub projectile_class: Option<ClassId>,
+}
+
+/// Static geometry and terrain: immutable for the run, shared by every snapshot.
+#[derive(Debug)]
+pub struct StaticWorld {
+    /// Entity ids, ascending.
+    pub id: Vec<EntityId>,
+    /// Classes.
+    pub class: Vec<ClassId>,
+    /// Shapes.
+    pub shape: Vec<Shape>,
+    /// Positions, m.
+    pub pos: Vec<DVec3>,
+    /// Orientations.
+    pub rot: Vec<DQuat>,
+    /// World bounds of each static body.
+    pub aabb: Vec<Aabb>,
+    /// BVH over `aabb`.
+    pub index: StaticIndex,
+    /// The height field, if the scene has terrain.
+    pub terrain: Option<Terrain>,
+}
+
+/// Height-field terrain as an entity.
+#[derive(Debug)]
+pub struct Terrain {
+    /// Its entity id.
+    pub id: EntityId,
+    /// Its class.
+    pub class: ClassId,
+    /// The surface.
+    pub field: HeightField,
+}
+
+/// Dynamic bodies, struct-of-arrays, sorted by ascending entity id (spawns append larger ids and
+/// removals keep the order), so iteration order is the id order and never a hash order.
+#[derive(Clone, Debug, Default)]
+pub struct Bodies {
+    /// Entity ids, strictly ascending.
+    pub id: Vec<EntityId>,
+    /// Classes.
+    pub class: Vec<ClassId>,
+    /// Shapes.
+    pub shape: Vec<Shape>,
+    /// Bounding radius of each shape, m (sizes the broadphase).
+    pub radius: Vec<f64>,
+    /// Centre positions, world frame, m.
+    pub pos: Vec<DVec3>,
+    /// Velocities, m/s.
+    pub vel: Vec<DVec3>,
+    /// Fixed orientations.
+    pub rot: Vec<DQuat>,
+    /// Inverse masses, 1/kg (0 = immovable but not static: it can still be destroyed).
+    pub inv_mass: Vec<f64>,
+    /// Owning client, if any.
+    pub owner: Vec<Option<ClientId>>,
+}
+
+/// A body to add.
+#[derive(Clone, Debug)]
+pub struct NewBody {
+    /// Class.
+    pub class: ClassId,
+    /// Shape.
+    pub shape: Shape,
+    /// Position, m.
+    pub pos: DVec3,
+    /// Velocity, m/s.
+    pub vel: DVec3,
+    /// Orientation.
+    pub rot: DQuat,
+    /// Inverse mass, 1/kg.
+    pub inv_mass: f64,
+    /// Owner.
+    pub owner: Option<ClientId>,
+}
+
+impl Bodies {
+    /// Number of bodies.
+    pub fn len(&self) -> usize {
+        self.id.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.id.is_empty()
+    }
+
+    /// The slot of an entity (binary search: ids are sorted).
+    pub fn slot(&self, id: EntityId) -> Option<usize> {
+        self.id.binary_search(&id).ok()
+    }
+
+    /// Appends a body with an id larger than every existing one.
+    pub fn push(&mut self, id: EntityId, b: NewBody) {
+        assert!(
+            self.id.last().is_none_or(|&last| last < id),
+            "entity ids must ascend"
+        );
+        self.id.push(id);
+        self.class.push(b.class);
+        self.radius.push(b.shape.bounding_radius());
+        self.shape.push(b.shape);
+        self.pos.push(b.pos);
+        self.vel.push(b.vel);
+        self.rot.push(b.rot);
+        self.inv_mass.push(b.inv_mass);
+        self.owner.push(b.owner);
+    }
+
+    /// Removes the slots flagged in `dead`, keeping the order of the rest.
+    pub fn remove_flagged(&mut self, dead: &[bool]) {
+        fn keep<T>(v: &mut Vec<T>, dead: &[bool]) {
+            let mut i = 0;
+            v.retain(|_| {
+                let k = !dead[i];
+                i += 1;
+                k
+            });
+        }
+        keep(&mut self.id, dead);
+        keep(&mut self.class, dead);
+        keep(&mut self.shape, dead);
+        keep(&mut self.radius, dead);
+        keep(&mut self.pos, dead);
+        keep(&mut self.vel, dead);
+        keep(&mut self.rot, dead);
+        keep(&mut self.inv_mass, dead);
+        keep(&mut self.owner, dead);
+    }
+}
+
+/// The whole simulation state at the start of a tick. Cloning it is the snapshot rollback
+/// keeps: the dynamic arrays are copied, the static part and the config are shared.
+#[derive(Clone, Debug)]
+pub struct World {
+    /// The next tick to simulate.
+    pub tick: Tick,
+    /// Dynamic bodies.
+    pub bodies: Bodies,
+    /// The id the next spawned body gets.
+    pub next_entity: u32,
+    /// Pairs touching at the end of the previous tick, `(lower id, higher id)`, sorted.
+    pub touching: Vec<(EntityId, EntityId)>,
+    /// Static geometry and terrain.
+    pub statics: Arc<StaticWorld>,
+    /// Settings.
+    pub config: Arc<SimConfig>,
+}
+
+impl World {
+    /// Adds a dynamic body and returns its id, or `None` when the world is full.
+    pub fn spawn(&mut self, b: NewBody) -> Option<EntityId> {
+        if self.bodies.len() >= self.config.max_bodies as usize {
+            return None;
+        }
+        let id = EntityId(self.next_entity);
+        self.next_entity = self.next_entity.checked_add(1)?;
+        self.bodies.push(id, b);
+        Some(id)
+    }
+
+    /// The class of any entity, dynamic, static or terrain.
+    pub fn class_of(&self, id: EntityId) -> Option<ClassId> {
+        if let Some(s) = self.bodies.slot(id) {
+            return Some(self.bodies.class[s]);
+        }
+        if let Ok(s) = self.statics.id.binary_search(&id) {
+            return Some(self.statics.class[s]);
+        }
+        self.statics
+            .terrain
+            .as_ref()
+            .filter(|t| t.id == id)
+            .map(|t| t.class)
+    }
+
+    /// A deterministic 64-bit hash of the state (FNV-1a over the exact bits of every field that
+    /// can change). Equal states hash equal on every platform.
+    pub fn state_hash(&self) -> u64 {
+        let mut h = Fnv::new();
+        h.u64(u64::from(self.tick.0));
+        h.u64(u64::from(self.next_entity));
+        let b = &self.bodies;
+        for i in 0..b.len() {
+            h.u64(u64::from(b.id[i].0));
+            h.u64(u64::from(b.class[i].0));
+            for v in [b.pos[i], b.vel[i]] {
+                h.f64(v.x);
+                h.f64(v.y);
+                h.f64(v.z);
+            }
+            h.f64(b.inv_mass[i]);
+            h.u64(b.owner[i].map_or(u64::MAX, |c| u64::from(c.0)));
+        }
+        for (a, c) in &self.touching {
+            h.u64(u64::from(a.0) << 32 | u64::from(c.0));
+        }
+        h.finish()
+    }
+}
+
+/// 64-bit FNV-1a.
+#[derive(Debug)]
+pub struct Fnv(u64);
+
+impl Fnv {
+    /// A fresh hasher.
+    pub fn new() -> Fnv {
+        Fnv(0xcbf2_9ce4_8422_2325)
+    }
+    /// Mixes in a u64 (little-endian bytes).
+    pub fn u64(&mut self, v: u64) {
+        for byte in v.to_le_bytes() {
+            self.0 ^= u64::from(byte);
+            self.0 = self.0.wrapping_mul(0x100_0000_01b3);
+        }
+    }
+    /// Mixes in the exact bits of an f64.
+    pub fn f64(&mut self, v: f64) {
+        self.u64(v.to_bits());
+    }
+    /// The hash.
+    pub fn finish(&self) -> u64 {
+        self.0
+    }
+}
+
+impl Default for Fnv {
+    fn default() -> Self {
+        Fnv::new()
+    }
+}
