@@ -90,9 +90,13 @@ impl Broadphase {
 
 /// parry's BVH over the static bodies' bounds. Bounds are rounded outwards to f32, so a static
 /// body far from the origin is never missed for want of precision.
+///
+/// With few static bodies (a handful of walls) a linear scan of their boxes beats any tree, so
+/// the BVH is only built from [`StaticIndex::BVH_MIN`] bodies up.
 #[derive(Debug)]
 pub struct StaticIndex {
     bvh: Option<parry::partitioning::Bvh>,
+    boxes: Vec<Aabb>,
 }
 
 fn outward(b: &Aabb) -> parry::bounding_volume::Aabb {
@@ -121,25 +125,32 @@ fn outward(b: &Aabb) -> parry::bounding_volume::Aabb {
 impl StaticIndex {
     /// Builds the BVH.
     pub fn new(aabbs: &[Aabb]) -> StaticIndex {
-        if aabbs.is_empty() {
-            return StaticIndex { bvh: None };
-        }
-        let leaves: Vec<_> = aabbs.iter().map(outward).collect();
-        StaticIndex {
-            bvh: Some(parry::partitioning::Bvh::from_leaves(
+        let bvh = (aabbs.len() >= Self::BVH_MIN).then(|| {
+            let leaves: Vec<_> = aabbs.iter().map(outward).collect();
+            parry::partitioning::Bvh::from_leaves(
                 parry::partitioning::BvhBuildStrategy::Binned,
                 &leaves,
-            )),
+            )
+        });
+        StaticIndex {
+            bvh,
+            boxes: aabbs.to_vec(),
         }
     }
+
+    /// Fewest static bodies for which the BVH is built.
+    pub const BVH_MIN: usize = 32;
 
     /// Static bodies whose bounds overlap `query`, ascending by index.
     pub fn query(&self, query: &Aabb, out: &mut Vec<u32>) {
         out.clear();
-        if let Some(bvh) = &self.bvh {
-            let q = outward(query);
-            out.extend(bvh.intersect_aabb(&q));
-            out.sort_unstable();
+        match &self.bvh {
+            Some(bvh) => {
+                let q = outward(query);
+                out.extend(bvh.intersect_aabb(&q));
+                out.sort_unstable();
+            }
+            None => brute::query(&self.boxes, query, out),
         }
     }
 }

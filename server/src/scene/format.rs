@@ -47,6 +47,9 @@ fn default_restitution() -> f64 {
 fn default_slop() -> f64 {
     1.0e-4
 }
+fn default_bounce_threshold() -> f64 {
+    0.5
+}
 fn default_max_speed() -> f64 {
     100.0
 }
@@ -93,6 +96,9 @@ pub struct WorldDef {
     /// Bodies closer than this count as touching, m (default 1e-4).
     #[serde(default = "default_slop")]
     pub contact_slop_m: f64,
+    /// Closing speed at or below which a bounce does not rebound, m/s (default 0.5).
+    #[serde(default = "default_bounce_threshold")]
+    pub bounce_threshold_mps: f64,
     /// Time-of-impact tolerance as a fraction of a tick (default 2^-15).
     #[serde(default)]
     pub toi_tolerance: Option<f64>,

@@ -244,6 +244,9 @@ impl Builder {
             }
             bisect.tolerance = tol;
         }
+        if !(w.bounce_threshold_mps.is_finite() && w.bounce_threshold_mps >= 0.0) {
+            return Err(self.err("world.bounce_threshold_mps", "must be finite and >= 0"));
+        }
         if !(0.0..=1.0).contains(&w.restitution) {
             return Err(self.err(
                 "world.restitution",
@@ -553,6 +556,7 @@ impl Builder {
             classes,
             bisect,
             contact_slop_m: w.contact_slop_m,
+            bounce_threshold_mps: w.bounce_threshold_mps,
             max_resolutions_per_tick: w.max_resolutions_per_tick,
             max_bodies: w.max_bodies,
             window_ticks,

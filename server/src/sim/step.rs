@@ -9,7 +9,7 @@ use crate::query::ray;
 use crate::sim::input::{self, TickInput};
 use crate::sim::plan::Plan;
 use crate::sim::shape::{Aabb, Shape};
-use crate::sim::world::{ClassId, Rule, World};
+use crate::sim::world::{Rule, World};
 use crate::toi::analytic::{swept_sphere, SweptSphere};
 use crate::toi::bisect::first_contact;
 use glam::{DQuat, DVec3};
@@ -17,6 +17,13 @@ use impact_protocol::{CollisionEvent, EntityId, EventStatus, Phase, RayResult, R
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 use std::time::{Duration, Instant};
+
+/// Extra fraction of the normal velocity removed by slide and inelastic contacts.
+const SLIDE_OVERCLIP: f64 = 1.0e-3;
+
+/// Most resolutions one body may take part in per tick before its motion for the rest of the
+/// tick is frozen where it stands (never inside anything). Bounds pathological piles.
+const MAX_RESOLUTIONS_PER_BODY: u32 = 64;
 
 /// The other side of a pair.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
@@ -54,6 +61,8 @@ pub struct StageStats {
     pub resolution_cap_hits: u64,
     /// Overlap tests spent by bisection and sampling, last tick.
     pub toi_tests: u32,
+    /// Body-ticks frozen by the per-body resolution cap, since start.
+    pub frozen: u64,
 }
 
 impl StageStats {
@@ -141,6 +150,7 @@ pub struct Stepper {
     version: Vec<u32>,
     moving: Vec<bool>,
     dead: Vec<bool>,
+    count: Vec<u32>,
     clip: Vec<[DVec3; 3]>,
     clip_len: Vec<u8>,
     pairs: Vec<(u32, u32)>,
@@ -167,6 +177,7 @@ impl Stepper {
             version: Vec::new(),
             moving: Vec::new(),
             dead: Vec::new(),
+            count: Vec::new(),
             clip: Vec::new(),
             clip_len: Vec::new(),
             pairs: Vec::new(),
@@ -229,6 +240,8 @@ impl Stepper {
         self.version.clear();
         self.moving.clear();
         self.dead.clear();
+        self.count.clear();
+        self.count.resize(n, 0);
         self.clip_len.clear();
         self.clip.resize(n, [DVec3::ZERO; 3]);
         for i in 0..n {
@@ -304,11 +317,50 @@ impl Stepper {
                 }
                 continue;
             }
+            if imp.started_inside && imp.contact.depth <= cfg.contact_slop_m && separating(w, &imp)
+            {
+                // Touching within the slop and already moving apart: nothing to resolve.
+                continue;
+            }
+            if !imp.started_inside
+                && closing_speed(w, &imp) * (1.0 - imp.t) * cfg.dt <= 0.5 * cfg.contact_slop_m
+            {
+                // A resting contact: even unresolved, the pair cannot sink deeper than half the
+                // slop by the end of the tick, and the next tick starts by pushing it apart.
+                // Resolving it would only set off a chain of micro-impacts through a pile.
+                continue;
+            }
             if resolutions >= cfg.max_resolutions_per_tick {
                 stats.resolution_cap_hits += 1;
                 break;
             }
             resolutions += 1;
+            self.count[i] += 1;
+            if let Partner::Body(j) = imp.b {
+                self.count[j as usize] += 1;
+            }
+            let over = |this: &Stepper, k: usize| this.count[k] > MAX_RESOLUTIONS_PER_BODY;
+            if over(self, i) || matches!(imp.b, Partner::Body(j) if over(self, j as usize)) {
+                for k in [
+                    Some(i),
+                    if let Partner::Body(j) = imp.b {
+                        Some(j as usize)
+                    } else {
+                        None
+                    },
+                ]
+                .into_iter()
+                .flatten()
+                {
+                    if over(self, k) && self.t0[k] < 1.0 {
+                        self.base[k] = self.pos_at(w, k, imp.t);
+                        self.t0[k] = 1.0;
+                        self.version[k] += 1;
+                        stats.frozen += 1;
+                    }
+                }
+                continue;
+            }
             let changed = self.resolve(w, &imp);
             for body in changed.into_iter().flatten() {
                 self.requery(w, body, &mut stats.toi_tests);
@@ -357,7 +409,7 @@ impl Stepper {
     /// Position of dynamic body `i` at step fraction `t` along its current path.
     #[inline]
     fn pos_at(&self, w: &World, i: usize, t: f64) -> DVec3 {
-        self.base[i] + w.bodies.vel[i] * ((t - self.t0[i]) * w.config.dt)
+        self.base[i] + w.bodies.vel[i] * ((t - self.t0[i]).max(0.0) * w.config.dt)
     }
 
     /// Position and velocity of the partner at `t`.
@@ -557,12 +609,18 @@ impl Stepper {
                             new_pos: DVec3,
                             new_vel: DVec3,
                             slot: usize| {
+            // A change too small to move the body by half the slop over the rest of the tick
+            // does not need its new path searched again.
+            let shift = (new_pos - this.pos_at(w, body, t)).length()
+                + (new_vel - w.bodies.vel[body]).length() * (1.0 - t) * w.config.dt;
             this.base[body] = new_pos;
             this.t0[body] = t;
             w.bodies.vel[body] = new_vel;
             this.version[body] += 1;
             this.moving[body] = true;
-            changed[slot] = Some(body as u32);
+            if shift > 0.5 * w.config.contact_slop_m {
+                changed[slot] = Some(body as u32);
+            }
         };
         match rule {
             Rule::Ignore | Rule::Trigger => {}
@@ -595,9 +653,13 @@ impl Stepper {
                 if inv_sum == 0.0 {
                     return changed; // two immovable bodies
                 }
-                // Push apart what already overlaps, in proportion to the inverse masses.
-                let push = if imp.started_inside {
-                    n * imp.contact.depth
+                // Push apart what overlaps deeper than the slop, in proportion to the inverse
+                // masses, back to half the slop: a pile then rests within the slop instead of
+                // each push driving a body into its other neighbours (and with a tiny slop this
+                // is a hair short of exact separation, which rounding could not keep anyway).
+                let excess = imp.contact.depth - 0.5 * cfg.contact_slop_m;
+                let push = if imp.started_inside && imp.contact.depth > cfg.contact_slop_m {
+                    n * excess
                 } else {
                     DVec3::ZERO
                 };
@@ -608,12 +670,27 @@ impl Stepper {
                     match rule {
                         Rule::Bounce { restitution } => {
                             // Impulse along n: dv = -(1 + e) (v.n) n, shared by inverse mass.
-                            let jn = (1.0 + restitution) * closing / inv_sum;
+                            // Below the bounce threshold the contact is resting: no rebound, so a
+                            // body on the ground under gravity settles instead of hopping.
+                            let e = if closing > cfg.bounce_threshold_mps {
+                                restitution
+                            } else {
+                                0.0
+                            };
+                            let jn = (1.0 + e) * closing * (1.0 + SLIDE_OVERCLIP) / inv_sum;
                             new_va = va - n * (jn * inv_ma);
                             new_vb = vb + n * (jn * inv_mb);
+                            if e == 0.0 && inv_mb == 0.0 {
+                                // A resting contact with static geometry slides like a player: in
+                                // a crease (a valley of the terrain) it keeps to the crease.
+                                new_va = self.clip_slide(i, -n, new_va);
+                            }
                         }
                         Rule::Slide => {
-                            let jn = closing / inv_sum;
+                            // Remove the approaching normal velocity and a hair more (as Quake's
+                            // overclip does), so rounding cannot leave the body creeping into the
+                            // wall and re-resolving the same contact.
+                            let jn = closing * (1.0 + SLIDE_OVERCLIP) / inv_sum;
                             new_va = va - n * (jn * inv_ma);
                             new_vb = vb + n * (jn * inv_mb);
                             if inv_mb == 0.0 {
@@ -867,6 +944,20 @@ impl Stepper {
     }
 }
 
+/// Approach speed of an impact's pair along its normal (positive when closing), m/s.
+fn closing_speed(w: &World, imp: &Impact) -> f64 {
+    let vb = match imp.b {
+        Partner::Body(j) => w.bodies.vel[j as usize],
+        _ => DVec3::ZERO,
+    };
+    -(vb - w.bodies.vel[imp.a as usize]).dot(imp.contact.normal)
+}
+
+/// Whether the pair of an impact is moving apart along its normal.
+fn separating(w: &World, imp: &Impact) -> bool {
+    closing_speed(w, imp) <= 0.0
+}
+
 /// Convex contact with the plan's kernel choice (analytic, or GJK when the plan forces the
 /// general path). Triangle meshes always take the mesh kernel.
 fn convex_contact(
@@ -932,17 +1023,17 @@ fn end_without_contact(
     key: (EntityId, EntityId),
     dead: &[bool],
 ) -> CollisionEvent {
-    let pos = |id: EntityId| -> (DVec3, Option<ClassId>) {
+    let pos = |id: EntityId| -> DVec3 {
         if let Some(s) = w.bodies.slot(id) {
-            return (w.bodies.pos[s], Some(w.bodies.class[s]));
+            return w.bodies.pos[s];
         }
-        if let Ok(s) = w.statics.id.binary_search(&id) {
-            return (w.statics.pos[s], Some(w.statics.class[s]));
+        match w.statics.id.binary_search(&id) {
+            Ok(s) => w.statics.pos[s],
+            Err(_) => DVec3::ZERO,
         }
-        (DVec3::ZERO, None)
     };
-    let (pa, ca) = pos(key.0);
-    let (pb, cb) = pos(key.1);
+    let (pa, ca) = (pos(key.0), w.class_of(key.0));
+    let (pb, cb) = (pos(key.1), w.class_of(key.1));
     let destroyed = [key.0, key.1]
         .iter()
         .any(|id| w.bodies.slot(*id).is_some_and(|s| dead[s]));

@@ -141,6 +141,8 @@ pub struct SimConfig {
     pub bisect: BisectConfig,
     /// Two bodies closer than this (m) count as touching for begin/end events.
     pub contact_slop_m: f64,
+    /// Closing speeds at or below this (m/s) get no rebound: a resting contact.
+    pub bounce_threshold_mps: f64,
     /// Most contact resolutions per tick (bounds the work a pathological pile can cause).
     pub max_resolutions_per_tick: u32,
     /// Most bodies the world may hold (spawns beyond it are refused).
