@@ -1,0 +1,30 @@
+//! impact-bench: benchmarks as programs. Each suite prints a table for humans and, with
+//! `--json`, one JSON object per line for machines. Peers (rapier) run in the same process on
+//! the same scene, so ratios hold on a noisy shared machine where absolute times do not.
+
+mod report;
+mod scale;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+
+/// Benchmarks for impact.
+#[derive(Parser, Debug)]
+#[command(version, about)]
+struct Args {
+    #[command(subcommand)]
+    suite: Suite,
+}
+
+#[derive(Subcommand, Debug)]
+enum Suite {
+    /// N moving spheres: impact's core against rapier's CollisionPipeline, and the plans and
+    /// broadphases against each other.
+    Scale(scale::ScaleArgs),
+}
+
+fn main() -> Result<()> {
+    match Args::parse().suite {
+        Suite::Scale(a) => scale::run(&a),
+    }
+}

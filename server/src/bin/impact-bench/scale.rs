@@ -1,0 +1,276 @@
+//! `impact-bench scale`: N spheres (radius 0.5 m, one per 8 m^3, speeds up to 5 m/s, 64 Hz)
+//! moving straight through each other, in impact's core and in rapier's CollisionPipeline, same
+//! positions every tick. Both answer the same question, which pairs overlap at the end of the
+//! step, and the counts are checked equal. impact's response is `trigger`, so neither engine
+//! changes a velocity and the two stay on the same trajectories.
+
+use super::report::{json_line, median_ms, progress};
+use anyhow::{ensure, Result};
+use clap::Args;
+use impact_server::broadphase::BroadphaseKind;
+use impact_server::scene::Scene;
+use impact_server::sim::{Plan, Stepper, TickOutput, World};
+use rapier3d::prelude::*;
+use serde_json::json;
+use std::time::{Duration, Instant};
+
+/// Options for the scale suite.
+#[derive(Args, Debug)]
+pub struct ScaleArgs {
+    /// Body counts (comma-separated).
+    #[arg(long, value_delimiter = ',', default_value = "1000,10000,50000")]
+    bodies: Vec<u32>,
+    /// Measured ticks (after warm-up); the median is reported.
+    #[arg(long, default_value_t = 120)]
+    ticks: u32,
+    /// Warm-up ticks.
+    #[arg(long, default_value_t = 20)]
+    warmup: u32,
+    /// Skip rapier (for body counts where it would take too long).
+    #[arg(long)]
+    no_rapier: bool,
+    /// Also time each broadphase (brute force up to 20k bodies) and the general (GJK) path.
+    #[arg(long)]
+    variants: bool,
+    /// Print JSON lines.
+    #[arg(long)]
+    json: bool,
+}
+
+/// The scale scene for `n` bodies.
+pub fn scene(n: u32) -> Result<Scene> {
+    let side = (8.0 * f64::from(n)).cbrt();
+    let text = format!(
+        r#"
+[world]
+name = "scale"
+tick_hz = 64
+default_response = "trigger"
+contact_slop_m = 1e-9
+max_bodies = 2000000
+[[class]]
+name = "ball"
+gravity = false
+max_speed_mps = 5.0
+[[scatter]]
+class = "ball"
+shape = {{ type = "sphere", radius_m = 0.5 }}
+count = {n}
+min = [0.0, 0.0, 0.0]
+max = [{side}, {side}, {side}]
+speed_mps = [0.0, 5.0]
+seed = 1
+"#
+    );
+    Ok(Scene::parse(&text, "<scale>")?)
+}
+
+struct Measured {
+    ms: f64,
+    pairs: usize,
+}
+
+fn run_impact(world: &World, plan: Plan, warmup: u32, ticks: u32) -> Measured {
+    let mut w = world.clone();
+    let mut stepper = Stepper::new(plan, std::env::var_os("IMPACT_PROFILE").is_some());
+    let mut out = TickOutput::default();
+    let mut samples = Vec::with_capacity(ticks as usize);
+    for k in 0..warmup + ticks {
+        let t = Instant::now();
+        stepper.step(&mut w, &[], &mut out);
+        if k >= warmup {
+            samples.push(t.elapsed());
+        }
+    }
+    if std::env::var_os("IMPACT_PROFILE").is_some() {
+        for (name, d) in stepper.stats.stages() {
+            eprintln!(
+                "    {name:<12} {:>9.4} ms/tick",
+                d.as_secs_f64() * 1e3 / f64::from(warmup + ticks)
+            );
+        }
+    }
+    Measured {
+        ms: median_ms(&mut samples),
+        pairs: w.touching.len(),
+    }
+}
+
+fn run_rapier(world: &World, warmup: u32, ticks: u32) -> Measured {
+    let b = &world.bodies;
+    let mut colliders = ColliderSet::new();
+    let mut bodies = RigidBodySet::new();
+    let handles: Vec<ColliderHandle> = (0..b.len())
+        .map(|i| {
+            let r = b.radius[i] as f32;
+            // Parentless colliders are fixed; let fixed-fixed pairs be tested, since here every
+            // collider moves (we set its position each tick).
+            colliders.insert(
+                ColliderBuilder::ball(r)
+                    .translation(b.pos[i].as_vec3())
+                    .active_collision_types(ActiveCollisionTypes::all())
+                    .build(),
+            )
+        })
+        .collect();
+    let mut pipeline = CollisionPipeline::new();
+    let mut broad = BroadPhaseBvh::new();
+    let mut narrow = NarrowPhase::new();
+    let mut islands = IslandManager::new();
+    let dt = world.config.dt;
+    let mut samples: Vec<Duration> = Vec::with_capacity(ticks as usize);
+    for k in 0..warmup + ticks {
+        let t = Instant::now();
+        // Same kinematics as impact: constant velocity, positions at the end of tick k.
+        let s = f64::from(k + 1) * dt;
+        for (i, h) in handles.iter().enumerate() {
+            let p = b.pos[i] + b.vel[i] * s;
+            if let Some(c) = colliders.get_mut(*h) {
+                c.set_translation(p.as_vec3());
+            }
+        }
+        pipeline.step(
+            0.0,
+            &mut islands,
+            &mut broad,
+            &mut narrow,
+            &mut bodies,
+            &mut colliders,
+            &(),
+            &(),
+        );
+        if k >= warmup {
+            samples.push(t.elapsed());
+        }
+    }
+    let pairs = narrow
+        .contact_pairs()
+        .filter(|p| {
+            p.manifolds()
+                .iter()
+                .any(|m| m.points.iter().any(|c| c.dist < 0.0))
+        })
+        .count();
+    Measured {
+        ms: median_ms(&mut samples),
+        pairs,
+    }
+}
+
+/// Runs the suite.
+pub fn run(a: &ScaleArgs) -> Result<()> {
+    println!("scale: moving spheres r = 0.5 m, one per 8 m^3, speeds up to 5 m/s, 64 Hz; median of {} ticks after {} warm-up", a.ticks, a.warmup);
+    println!(
+        "{:>8} {:<22} {:>12} {:>10} {:>12}",
+        "bodies", "engine", "ms/tick", "pairs", "vs rapier"
+    );
+    let mut growth: Vec<(f64, f64)> = Vec::new();
+    for &n in &a.bodies {
+        progress(&format!("{n} bodies: building"));
+        let scene = scene(n)?;
+        let world = &scene.world;
+        let plan = Plan::for_world(world);
+        progress(&format!("{n} bodies: impact ({})", plan.broadphase.name()));
+        let ours = run_impact(world, plan.clone(), a.warmup, a.ticks);
+        growth.push((f64::from(n), ours.ms));
+        let peer = if a.no_rapier {
+            None
+        } else {
+            progress(&format!("{n} bodies: rapier"));
+            Some(run_rapier(world, a.warmup, a.ticks))
+        };
+        let ratio = peer.as_ref().map(|p| p.ms / ours.ms);
+        println!(
+            "{n:>8} {:<22} {:>12.4} {:>10} {:>12}",
+            format!("impact ({})", plan.broadphase.name()),
+            ours.ms,
+            ours.pairs,
+            ratio.map_or("-".into(), |r| format!("{r:.1}x faster"))
+        );
+        if a.json {
+            json_line(
+                &json!({"suite": "scale", "engine": "impact", "bodies": n, "ms_per_tick": ours.ms, "pairs": ours.pairs, "broadphase": plan.broadphase.name()}),
+            );
+        }
+        if let Some(p) = &peer {
+            println!(
+                "{n:>8} {:<22} {:>12.4} {:>10} {:>12}",
+                "rapier", p.ms, p.pairs, "1.0x"
+            );
+            if a.json {
+                json_line(
+                    &json!({"suite": "scale", "engine": "rapier", "bodies": n, "ms_per_tick": p.ms, "pairs": p.pairs}),
+                );
+            }
+            // Same question, same answer: a mismatch means one engine is wrong.
+            let diff = (p.pairs as f64 - ours.pairs as f64).abs();
+            ensure!(
+                diff <= 1.0 + 1e-3 * p.pairs as f64,
+                "pair counts differ: impact {} rapier {}",
+                ours.pairs,
+                p.pairs
+            );
+        }
+        if a.variants {
+            let mut kinds = vec![BroadphaseKind::SweepAndPrune, BroadphaseKind::Grid];
+            if n <= 20_000 {
+                kinds.push(BroadphaseKind::BruteForce);
+            }
+            for kind in kinds {
+                progress(&format!("{n} bodies: broadphase {}", kind.name()));
+                let m = run_impact(
+                    world,
+                    Plan {
+                        broadphase: kind,
+                        ..plan.clone()
+                    },
+                    a.warmup.min(5),
+                    a.ticks.min(30),
+                );
+                println!(
+                    "{n:>8} {:<22} {:>12.4} {:>10}",
+                    format!("impact broadphase={}", kind.name()),
+                    m.ms,
+                    m.pairs
+                );
+                if a.json {
+                    json_line(
+                        &json!({"suite": "scale", "engine": "impact", "variant": format!("broadphase={}", kind.name()), "bodies": n, "ms_per_tick": m.ms, "pairs": m.pairs}),
+                    );
+                }
+            }
+            progress(&format!("{n} bodies: general path"));
+            let m = run_impact(
+                world,
+                Plan::general(world),
+                a.warmup.min(5),
+                a.ticks.min(30),
+            );
+            println!(
+                "{n:>8} {:<22} {:>12.4} {:>10} {:>12}",
+                "impact general (GJK)",
+                m.ms,
+                m.pairs,
+                format!("plan {:.1}x faster", m.ms / ours.ms)
+            );
+            if a.json {
+                json_line(
+                    &json!({"suite": "scale", "engine": "impact", "variant": "general", "bodies": n, "ms_per_tick": m.ms, "pairs": m.pairs}),
+                );
+            }
+        }
+    }
+    if growth.len() >= 2 {
+        // Least-squares slope of log(ms) on log(n): 1 is linear.
+        let pts: Vec<(f64, f64)> = growth.iter().map(|(n, ms)| (n.ln(), ms.ln())).collect();
+        let mx = pts.iter().map(|p| p.0).sum::<f64>() / pts.len() as f64;
+        let my = pts.iter().map(|p| p.1).sum::<f64>() / pts.len() as f64;
+        let slope = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum::<f64>()
+            / pts.iter().map(|p| (p.0 - mx).powi(2)).sum::<f64>();
+        println!("growth exponent (ms ~ n^k, least squares): k = {slope:.2}");
+        if a.json {
+            json_line(&json!({"suite": "scale", "engine": "impact", "growth_exponent": slope}));
+        }
+    }
+    Ok(())
+}
