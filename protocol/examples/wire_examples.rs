@@ -4,15 +4,8 @@
 use impact_protocol::*;
 
 fn hex(bytes: &[u8]) -> String {
-    let lines: Vec<String> = bytes
-        .chunks(16)
-        .map(|c| {
-            c.iter()
-                .map(|b| format!("{b:02x}"))
-                .collect::<Vec<_>>()
-                .join(" ")
-        })
-        .collect();
+    let lines: Vec<String> =
+        bytes.chunks(16).map(|c| c.iter().map(|b| format!("{b:02x}")).collect::<Vec<_>>().join(" ")).collect();
     lines.join("\n")
 }
 
@@ -22,10 +15,7 @@ fn main() {
         seq: 42,
         tick: Tick(1200),
         actions: vec![
-            Action::SetVelocity {
-                entity: EntityId(19),
-                velocity: [1.5, 0.0, -2.0],
-            },
+            Action::SetVelocity { entity: EntityId(19), velocity: [1.5, 0.0, -2.0] },
             Action::FireRay {
                 shooter: EntityId(19),
                 origin: [0.0, 1.0, 0.0],

@@ -75,20 +75,14 @@ impl FromStr for Encoding {
 /// Encodes a message after validating it, so the server can never emit a payload that
 /// [`decode`] would refuse (JSON has no representation for NaN, and a client must not have to
 /// guess what `null` meant).
-pub fn encode<T: Serialize + Validate>(
-    msg: &T,
-    encoding: Encoding,
-) -> Result<Vec<u8>, ProtocolError> {
+pub fn encode<T: Serialize + Validate>(msg: &T, encoding: Encoding) -> Result<Vec<u8>, ProtocolError> {
     msg.validate()?;
     match encoding {
-        Encoding::MsgPack => rmp_serde::to_vec_named(msg).map_err(|e| ProtocolError::Malformed {
-            encoding: "msgpack",
-            detail: e.to_string(),
-        }),
-        Encoding::Json => serde_json::to_vec(msg).map_err(|e| ProtocolError::Malformed {
-            encoding: "json",
-            detail: e.to_string(),
-        }),
+        Encoding::MsgPack => rmp_serde::to_vec_named(msg)
+            .map_err(|e| ProtocolError::Malformed { encoding: "msgpack", detail: e.to_string() }),
+        Encoding::Json => {
+            serde_json::to_vec(msg).map_err(|e| ProtocolError::Malformed { encoding: "json", detail: e.to_string() })
+        }
     }
 }
 
@@ -99,24 +93,17 @@ pub fn decode<T: DeserializeOwned + Validate>(
     max_bytes: usize,
 ) -> Result<T, ProtocolError> {
     if bytes.len() > max_bytes {
-        return Err(ProtocolError::TooLarge {
-            len: bytes.len(),
-            limit: max_bytes,
-        });
+        return Err(ProtocolError::TooLarge { len: bytes.len(), limit: max_bytes });
     }
     let msg: T = match encoding {
         Encoding::MsgPack => {
             let mut de = rmp_serde::Deserializer::new(Cursor::new(bytes));
             de.set_max_depth(MAX_DECODE_DEPTH);
-            let msg = T::deserialize(&mut de).map_err(|e| ProtocolError::Malformed {
-                encoding: "msgpack",
-                detail: e.to_string(),
-            })?;
+            let msg = T::deserialize(&mut de)
+                .map_err(|e| ProtocolError::Malformed { encoding: "msgpack", detail: e.to_string() })?;
             let used = de.position() as usize;
             if used != bytes.len() {
-                return Err(ProtocolError::TrailingBytes {
-                    extra: bytes.len() - used,
-                });
+                return Err(ProtocolError::TrailingBytes { extra: bytes.len() - used });
             }
             msg
         }
@@ -124,18 +111,8 @@ pub fn decode<T: DeserializeOwned + Validate>(
             let mut stream = serde_json::Deserializer::from_slice(bytes).into_iter::<T>();
             let msg = match stream.next() {
                 Some(Ok(msg)) => msg,
-                Some(Err(e)) => {
-                    return Err(ProtocolError::Malformed {
-                        encoding: "json",
-                        detail: e.to_string(),
-                    })
-                }
-                None => {
-                    return Err(ProtocolError::Malformed {
-                        encoding: "json",
-                        detail: "empty payload".into(),
-                    })
-                }
+                Some(Err(e)) => return Err(ProtocolError::Malformed { encoding: "json", detail: e.to_string() }),
+                None => return Err(ProtocolError::Malformed { encoding: "json", detail: "empty payload".into() }),
             };
             let rest = &bytes[stream.byte_offset()..];
             if rest.iter().any(|b| !b.is_ascii_whitespace()) {

@@ -1,5 +1,5 @@
 //! The protocol crate's one error type. Every variant names what was wrong so the server can
-//! turn it into a [`RejectReason`](crate::RejectReason) the client receives.
+//! turn it into a [`RejectReason`] the client receives.
 
 use crate::message::RejectReason;
 

@@ -6,9 +6,7 @@ use std::fmt;
 
 /// A simulation tick. Tick `t` advances the world from time `t * dt` to `(t + 1) * dt`, where
 /// `dt = 1 / tick_hz` seconds. `u32` lasts over two years at 64 Hz.
-#[derive(
-    Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize,
-)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 #[serde(transparent)]
 pub struct Tick(pub u32);
 
@@ -27,9 +25,7 @@ impl fmt::Display for Tick {
 }
 
 /// A client, unique within a world. Chosen by the client and carried in its key expressions.
-#[derive(
-    Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize,
-)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 #[serde(transparent)]
 pub struct ClientId(pub u32);
 
@@ -41,9 +37,7 @@ impl fmt::Display for ClientId {
 
 /// A body in the world (dynamic, static, terrain). Assigned by the server; never reused within
 /// a run, so an event naming an entity is unambiguous.
-#[derive(
-    Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize,
-)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 #[serde(transparent)]
 pub struct EntityId(pub u32);
 
@@ -64,9 +58,7 @@ impl WorldId {
     pub fn new(name: impl Into<String>) -> Result<WorldId, crate::ProtocolError> {
         let name = name.into();
         let ok_len = !name.is_empty() && name.len() <= crate::limits::MAX_NAME_LEN;
-        let ok_chars = name
-            .bytes()
-            .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_' || b == b'-');
+        let ok_chars = name.bytes().all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_' || b == b'-');
         if ok_len && ok_chars {
             Ok(WorldId(name))
         } else {

@@ -18,69 +18,30 @@ pub struct KeyPattern {
 }
 
 /// Client -> server inputs ([`ClientMessage`](crate::ClientMessage)).
-pub const INPUT: KeyPattern = KeyPattern {
-    name: "input",
-    pattern: "impact/v1/{world}/input/{client}",
-};
+pub const INPUT: KeyPattern = KeyPattern { name: "input", pattern: "impact/v1/{world}/input/{client}" };
 /// Per-tick event batches ([`ServerMessage::Events`](crate::ServerMessage::Events)).
-pub const EVENTS: KeyPattern = KeyPattern {
-    name: "events",
-    pattern: "impact/v1/{world}/events",
-};
+pub const EVENTS: KeyPattern = KeyPattern { name: "events", pattern: "impact/v1/{world}/events" };
 /// Corrections of published ticks.
-pub const CORRECTIONS: KeyPattern = KeyPattern {
-    name: "corrections",
-    pattern: "impact/v1/{world}/corrections",
-};
+pub const CORRECTIONS: KeyPattern = KeyPattern { name: "corrections", pattern: "impact/v1/{world}/corrections" };
 /// Confirmed (final) event batches.
-pub const CONFIRMED: KeyPattern = KeyPattern {
-    name: "confirmed",
-    pattern: "impact/v1/{world}/confirmed",
-};
+pub const CONFIRMED: KeyPattern = KeyPattern { name: "confirmed", pattern: "impact/v1/{world}/confirmed" };
 /// Events, corrections and confirmations that involve one client's entities.
-pub const CLIENT_EVENTS: KeyPattern = KeyPattern {
-    name: "client_events",
-    pattern: "impact/v1/{world}/client/{client}/events",
-};
+pub const CLIENT_EVENTS: KeyPattern =
+    KeyPattern { name: "client_events", pattern: "impact/v1/{world}/client/{client}/events" };
 /// Acks, rejects, ray results and the welcome for one client.
-pub const CLIENT_ACK: KeyPattern = KeyPattern {
-    name: "client_ack",
-    pattern: "impact/v1/{world}/client/{client}/ack",
-};
+pub const CLIENT_ACK: KeyPattern = KeyPattern { name: "client_ack", pattern: "impact/v1/{world}/client/{client}/ack" };
 /// Server statistics, once a second.
-pub const STATS: KeyPattern = KeyPattern {
-    name: "stats",
-    pattern: "impact/v1/{world}/stats",
-};
+pub const STATS: KeyPattern = KeyPattern { name: "stats", pattern: "impact/v1/{world}/stats" };
 /// Liveliness token a client declares while connected.
-pub const PRESENCE: KeyPattern = KeyPattern {
-    name: "presence",
-    pattern: "impact/v1/{world}/presence/{client}",
-};
+pub const PRESENCE: KeyPattern = KeyPattern { name: "presence", pattern: "impact/v1/{world}/presence/{client}" };
 /// Queryable: world state at a tick (`?tick=T`).
-pub const QUERY_STATE: KeyPattern = KeyPattern {
-    name: "query_state",
-    pattern: "impact/v1/{world}/query/state",
-};
+pub const QUERY_STATE: KeyPattern = KeyPattern { name: "query_state", pattern: "impact/v1/{world}/query/state" };
 /// Queryable: events of a tick range (`?from=T1;to=T2`).
-pub const QUERY_HISTORY: KeyPattern = KeyPattern {
-    name: "query_history",
-    pattern: "impact/v1/{world}/query/history",
-};
+pub const QUERY_HISTORY: KeyPattern = KeyPattern { name: "query_history", pattern: "impact/v1/{world}/query/history" };
 
 /// Every key impact uses.
-pub const PATTERNS: [KeyPattern; 10] = [
-    INPUT,
-    EVENTS,
-    CORRECTIONS,
-    CONFIRMED,
-    CLIENT_EVENTS,
-    CLIENT_ACK,
-    STATS,
-    PRESENCE,
-    QUERY_STATE,
-    QUERY_HISTORY,
-];
+pub const PATTERNS: [KeyPattern; 10] =
+    [INPUT, EVENTS, CORRECTIONS, CONFIRMED, CLIENT_EVENTS, CLIENT_ACK, STATS, PRESENCE, QUERY_STATE, QUERY_HISTORY];
 
 impl KeyPattern {
     /// The key for one world (and, where the pattern has one, one client).
@@ -99,17 +60,12 @@ impl KeyPattern {
 
     /// The key with `*` for the world too: what an inspector of every world subscribes to.
     pub fn any_world(&self) -> String {
-        self.pattern
-            .replace("{world}", "*")
-            .replace("{client}", "*")
+        self.pattern.replace("{world}", "*").replace("{client}", "*")
     }
 
     /// Reads `(world, client)` back out of a concrete key of this pattern.
     pub fn parse(&self, key: &str) -> Result<(WorldId, Option<ClientId>), ProtocolError> {
-        let bad = || ProtocolError::BadKey {
-            key: key.chars().take(200).collect(),
-            expected: self.pattern,
-        };
+        let bad = || ProtocolError::BadKey { key: key.chars().take(200).collect(), expected: self.pattern };
         let pat: Vec<&str> = self.pattern.split('/').collect();
         let got: Vec<&str> = key.split('/').collect();
         if pat.len() != got.len() {
@@ -150,12 +106,7 @@ mod tests {
     #[test]
     fn every_pattern_is_versioned_and_unique() {
         for (i, p) in PATTERNS.iter().enumerate() {
-            assert!(
-                p.pattern
-                    .starts_with(&format!("impact/{VERSION}/{{world}}/")),
-                "{}",
-                p.pattern
-            );
+            assert!(p.pattern.starts_with(&format!("impact/{VERSION}/{{world}}/")), "{}", p.pattern);
             for q in &PATTERNS[i + 1..] {
                 assert_ne!(p.pattern, q.pattern);
                 assert_ne!(p.name, q.name);

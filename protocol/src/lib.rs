@@ -25,8 +25,7 @@ pub use error::ProtocolError;
 pub use event::{CollisionEvent, EventStatus, Phase, Response};
 pub use ids::{ClientId, EntityId, Tick, WorldId};
 pub use message::{
-    Action, BodyState, ClientInput, ClientMessage, CorrectionBatch, EventBatch, EventHistory,
-    InputAck, InputReject, QueryError, RayHit, RayResult, RejectReason, ServerMessage, ServerStats,
-    ShapeSpec, Welcome, WorldSnapshot,
+    Action, BodyState, ClientInput, ClientMessage, CorrectionBatch, EventBatch, EventHistory, InputAck, InputReject,
+    QueryError, RayHit, RayResult, RejectReason, ServerMessage, ServerStats, ShapeSpec, Welcome, WorldSnapshot,
 };
 pub use validate::Validate;

@@ -21,12 +21,7 @@ fn finite(x: f64, path: impl Fn() -> String) -> Result<(), ProtocolError> {
     }
 }
 
-fn vec3(
-    v: &[f64; 3],
-    max_norm: f64,
-    what: &str,
-    path: impl Fn() -> String,
-) -> Result<(), ProtocolError> {
+fn vec3(v: &[f64; 3], max_norm: f64, what: &str, path: impl Fn() -> String) -> Result<(), ProtocolError> {
     for (i, x) in v.iter().enumerate() {
         finite(*x, || format!("{}[{i}]", path()))?;
     }
@@ -58,10 +53,7 @@ fn positive(x: f64, max: f64, path: impl Fn() -> String) -> Result<(), ProtocolE
     if x > 0.0 && x <= max {
         Ok(())
     } else {
-        Err(ProtocolError::OutOfRange {
-            field: path(),
-            detail: format!("{x:e} not in (0, {max:e}]"),
-        })
+        Err(ProtocolError::OutOfRange { field: path(), detail: format!("{x:e} not in (0, {max:e}]") })
     }
 }
 
@@ -69,10 +61,7 @@ fn count(n: usize, max: usize, path: &str) -> Result<(), ProtocolError> {
     if n <= max {
         Ok(())
     } else {
-        Err(ProtocolError::OutOfRange {
-            field: path.into(),
-            detail: format!("{n} items, at most {max}"),
-        })
+        Err(ProtocolError::OutOfRange { field: path.into(), detail: format!("{n} items, at most {max}") })
     }
 }
 
@@ -85,25 +74,14 @@ impl Validate for ShapeSpec {
 impl ShapeSpec {
     fn validate_at(&self, path: &dyn Fn() -> String) -> Result<(), ProtocolError> {
         match self {
-            ShapeSpec::Sphere { radius_m } => positive(*radius_m, MAX_SHAPE_DIM_M, || {
-                format!("{}.radius_m", path())
-            }),
-            ShapeSpec::Capsule {
-                half_height_m,
-                radius_m,
-            } => {
-                positive(*radius_m, MAX_SHAPE_DIM_M, || {
-                    format!("{}.radius_m", path())
-                })?;
-                positive(*half_height_m, MAX_SHAPE_DIM_M, || {
-                    format!("{}.half_height_m", path())
-                })
+            ShapeSpec::Sphere { radius_m } => positive(*radius_m, MAX_SHAPE_DIM_M, || format!("{}.radius_m", path())),
+            ShapeSpec::Capsule { half_height_m, radius_m } => {
+                positive(*radius_m, MAX_SHAPE_DIM_M, || format!("{}.radius_m", path()))?;
+                positive(*half_height_m, MAX_SHAPE_DIM_M, || format!("{}.half_height_m", path()))
             }
             ShapeSpec::Cuboid { half_extents_m } => {
                 for (i, h) in half_extents_m.iter().enumerate() {
-                    positive(*h, MAX_SHAPE_DIM_M, || {
-                        format!("{}.half_extents_m[{i}]", path())
-                    })?;
+                    positive(*h, MAX_SHAPE_DIM_M, || format!("{}.half_extents_m[{i}]", path()))?;
                 }
                 Ok(())
             }
@@ -121,29 +99,14 @@ impl Action {
     fn validate_at(&self, path: &dyn Fn() -> String) -> Result<(), ProtocolError> {
         let field = |name: &str| format!("{}.{name}", path());
         match self {
-            Action::SetVelocity { velocity, .. } => {
-                vec3(velocity, MAX_SPEED_MPS, "speed (m/s)", || field("velocity"))
-            }
-            Action::ApplyImpulse { impulse, .. } => {
-                vec3(impulse, MAX_IMPULSE_NS, "impulse (N*s)", || {
-                    field("impulse")
-                })
-            }
-            Action::SpawnProjectile {
-                shape,
-                position,
-                velocity,
-            } => {
+            Action::SetVelocity { velocity, .. } => vec3(velocity, MAX_SPEED_MPS, "speed (m/s)", || field("velocity")),
+            Action::ApplyImpulse { impulse, .. } => vec3(impulse, MAX_IMPULSE_NS, "impulse (N*s)", || field("impulse")),
+            Action::SpawnProjectile { shape, position, velocity } => {
                 shape.validate_at(&|| field("shape"))?;
                 coord3(position, || field("position"))?;
                 vec3(velocity, MAX_SPEED_MPS, "speed (m/s)", || field("velocity"))
             }
-            Action::FireRay {
-                origin,
-                direction,
-                max_distance_m,
-                ..
-            } => {
+            Action::FireRay { origin, direction, max_distance_m, .. } => {
                 coord3(origin, || field("origin"))?;
                 vec3(direction, f64::MAX, "length", || field("direction"))?;
                 let len2 = direction.iter().map(|x| x * x).sum::<f64>();
@@ -154,9 +117,7 @@ impl Action {
                         detail: "direction must be non-zero".into(),
                     });
                 }
-                positive(*max_distance_m, MAX_RAY_DISTANCE_M, || {
-                    field("max_distance_m")
-                })
+                positive(*max_distance_m, MAX_RAY_DISTANCE_M, || field("max_distance_m"))
             }
             Action::Despawn { .. } => Ok(()),
         }
@@ -167,10 +128,7 @@ impl Validate for ClientInput {
     fn validate(&self) -> Result<(), ProtocolError> {
         if self.actions.len() > MAX_ACTIONS_PER_INPUT {
             // Too many actions is a size problem, reported as such.
-            return Err(ProtocolError::TooLarge {
-                len: self.actions.len(),
-                limit: MAX_ACTIONS_PER_INPUT,
-            });
+            return Err(ProtocolError::TooLarge { len: self.actions.len(), limit: MAX_ACTIONS_PER_INPUT });
         }
         for (i, a) in self.actions.iter().enumerate() {
             a.validate_at(&|| format!("actions[{i}]"))?;
@@ -189,20 +147,10 @@ impl Validate for ClientMessage {
 
 impl Validate for CollisionEvent {
     fn validate(&self) -> Result<(), ProtocolError> {
-        let CollisionEvent {
-            toi,
-            point,
-            normal,
-            depth_m,
-            closing_speed_mps,
-            ..
-        } = self;
+        let CollisionEvent { toi, point, normal, depth_m, closing_speed_mps, .. } = self;
         finite(*toi, || "toi".into())?;
         if !(0.0..=1.0).contains(toi) {
-            return Err(ProtocolError::OutOfRange {
-                field: "toi".into(),
-                detail: format!("{toi} not in [0, 1]"),
-            });
+            return Err(ProtocolError::OutOfRange { field: "toi".into(), detail: format!("{toi} not in [0, 1]") });
         }
         coord3(point, || "point".into())?;
         vec3(normal, 1.0 + 1e-6, "length", || "normal".into())?;
@@ -236,9 +184,7 @@ impl Validate for ServerMessage {
             ServerMessage::Snapshot(s) => {
                 for (i, b) in s.bodies.iter().enumerate() {
                     coord3(&b.position, || format!("bodies[{i}].position"))?;
-                    vec3(&b.velocity, f64::MAX, "speed", || {
-                        format!("bodies[{i}].velocity")
-                    })?;
+                    vec3(&b.velocity, f64::MAX, "speed", || format!("bodies[{i}].velocity"))?;
                     count(b.class.len(), MAX_NAME_LEN, "class")?;
                 }
                 Ok(())

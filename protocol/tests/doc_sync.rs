@@ -13,10 +13,7 @@ fn doc() -> String {
 /// The bodies of every fenced block with the given info string.
 fn blocks(doc: &str, info: &str) -> Vec<String> {
     let open = format!("```{info}\n");
-    doc.split(&open)
-        .skip(1)
-        .map(|rest| rest.split("```").next().unwrap_or("").to_string())
-        .collect()
+    doc.split(&open).skip(1).map(|rest| rest.split("```").next().unwrap_or("").to_string()).collect()
 }
 
 fn decodes_either(bytes: &[u8], enc: Encoding) -> bool {
@@ -42,25 +39,13 @@ fn every_example_decodes() {
     let doc = doc();
     let hex_blocks = blocks(&doc, "hex");
     let json_blocks = blocks(&doc, "json");
-    assert!(
-        hex_blocks.len() >= 2 && json_blocks.len() >= 2,
-        "examples for both directions are required"
-    );
+    assert!(hex_blocks.len() >= 2 && json_blocks.len() >= 2, "examples for both directions are required");
     for block in &hex_blocks {
-        let bytes: Vec<u8> = block
-            .split_whitespace()
-            .map(|h| u8::from_str_radix(h, 16).expect("hex byte"))
-            .collect();
-        assert!(
-            decodes_either(&bytes, Encoding::MsgPack),
-            "hex example does not decode:\n{block}"
-        );
+        let bytes: Vec<u8> = block.split_whitespace().map(|h| u8::from_str_radix(h, 16).expect("hex byte")).collect();
+        assert!(decodes_either(&bytes, Encoding::MsgPack), "hex example does not decode:\n{block}");
     }
     for block in &json_blocks {
-        assert!(
-            decodes_either(block.trim().as_bytes(), Encoding::Json),
-            "json example does not decode:\n{block}"
-        );
+        assert!(decodes_either(block.trim().as_bytes(), Encoding::Json), "json example does not decode:\n{block}");
     }
 }
 
@@ -71,9 +56,6 @@ fn every_reject_reason_is_documented() {
         let name = reason.name();
         // The wire name and `name()` are the same string.
         assert_eq!(serde_json::to_value(reason).unwrap(), name);
-        assert!(
-            doc.contains(&format!("| `{name}` |")),
-            "reason {name} missing from PROTOCOL.md"
-        );
+        assert!(doc.contains(&format!("| `{name}` |")), "reason {name} missing from PROTOCOL.md");
     }
 }

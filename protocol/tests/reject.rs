@@ -9,12 +9,7 @@ use impact_protocol::*;
 use proptest::prelude::*;
 
 fn input(actions: Vec<Action>) -> ClientMessage {
-    ClientMessage::Input(ClientInput {
-        client: ClientId(1),
-        seq: 9,
-        tick: Tick(5),
-        actions,
-    })
+    ClientMessage::Input(ClientInput { client: ClientId(1), seq: 9, tick: Tick(5), actions })
 }
 
 fn decode_client(bytes: &[u8], enc: Encoding) -> Result<ClientMessage, ProtocolError> {
@@ -28,25 +23,14 @@ fn oversized_is_refused_before_decoding() {
     bytes.resize(MAX_CLIENT_MESSAGE_BYTES + 1, b' ');
     for enc in [Encoding::MsgPack, Encoding::Json] {
         let err = decode_client(&bytes, enc).unwrap_err();
-        assert_eq!(
-            err,
-            ProtocolError::TooLarge {
-                len: MAX_CLIENT_MESSAGE_BYTES + 1,
-                limit: MAX_CLIENT_MESSAGE_BYTES
-            }
-        );
+        assert_eq!(err, ProtocolError::TooLarge { len: MAX_CLIENT_MESSAGE_BYTES + 1, limit: MAX_CLIENT_MESSAGE_BYTES });
         assert_eq!(err.reject_reason(), RejectReason::TooLarge);
     }
 }
 
 #[test]
 fn too_many_actions_is_too_large() {
-    let msg = input(vec![
-        Action::Despawn {
-            entity: EntityId(1)
-        };
-        MAX_ACTIONS_PER_INPUT + 1
-    ]);
+    let msg = input(vec![Action::Despawn { entity: EntityId(1) }; MAX_ACTIONS_PER_INPUT + 1]);
     let bytes = rmp_serde::to_vec_named(&msg).unwrap();
     let err = decode_client(&bytes, Encoding::MsgPack).unwrap_err();
     assert_eq!(err.reject_reason(), RejectReason::TooLarge, "{err}");
@@ -54,18 +38,12 @@ fn too_many_actions_is_too_large() {
 
 #[test]
 fn truncated_is_malformed_at_every_cut() {
-    let msg = input(vec![Action::SetVelocity {
-        entity: EntityId(2),
-        velocity: [1.0, 2.0, 3.0],
-    }]);
+    let msg = input(vec![Action::SetVelocity { entity: EntityId(2), velocity: [1.0, 2.0, 3.0] }]);
     for enc in [Encoding::MsgPack, Encoding::Json] {
         let bytes = encode(&msg, enc).unwrap();
         for cut in 0..bytes.len() {
             let err = decode_client(&bytes[..cut], enc).unwrap_err();
-            assert!(
-                matches!(err, ProtocolError::Malformed { .. }),
-                "{enc} cut at {cut}: {err}"
-            );
+            assert!(matches!(err, ProtocolError::Malformed { .. }), "{enc} cut at {cut}: {err}");
         }
     }
 }
@@ -76,11 +54,7 @@ fn trailing_bytes_are_refused() {
     for enc in [Encoding::MsgPack, Encoding::Json] {
         let mut bytes = encode(&msg, enc).unwrap();
         bytes.extend_from_slice(b"xy");
-        assert_eq!(
-            decode_client(&bytes, enc).unwrap_err(),
-            ProtocolError::TrailingBytes { extra: 2 },
-            "{enc}"
-        );
+        assert_eq!(decode_client(&bytes, enc).unwrap_err(), ProtocolError::TrailingBytes { extra: 2 }, "{enc}");
     }
     // Whitespace after a JSON document is not "trailing bytes": JSON allows it.
     let mut json = encode(&msg, Encoding::Json).unwrap();
@@ -92,30 +66,18 @@ fn trailing_bytes_are_refused() {
 fn non_finite_floats_are_refused_with_the_field_path() {
     for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
         let msg = input(vec![
-            Action::Despawn {
-                entity: EntityId(1),
-            },
-            Action::SetVelocity {
-                entity: EntityId(2),
-                velocity: [0.0, bad, 0.0],
-            },
+            Action::Despawn { entity: EntityId(1) },
+            Action::SetVelocity { entity: EntityId(2), velocity: [0.0, bad, 0.0] },
         ]);
         // Encode refuses to produce it...
         assert_eq!(
             encode(&msg, Encoding::MsgPack).unwrap_err(),
-            ProtocolError::NonFinite {
-                field: "actions[1].velocity[1]".into()
-            }
+            ProtocolError::NonFinite { field: "actions[1].velocity[1]".into() }
         );
         // ...and decode refuses it when another implementation does produce it.
         let bytes = rmp_serde::to_vec_named(&msg).unwrap();
         let err = decode_client(&bytes, Encoding::MsgPack).unwrap_err();
-        assert_eq!(
-            err,
-            ProtocolError::NonFinite {
-                field: "actions[1].velocity[1]".into()
-            }
-        );
+        assert_eq!(err, ProtocolError::NonFinite { field: "actions[1].velocity[1]".into() });
         assert_eq!(err.reject_reason(), RejectReason::InvalidNumber);
     }
 }
@@ -123,20 +85,9 @@ fn non_finite_floats_are_refused_with_the_field_path() {
 #[test]
 fn out_of_range_values_are_refused() {
     let cases = [
+        (Action::SetVelocity { entity: EntityId(1), velocity: [MAX_SPEED_MPS * 2.0, 0.0, 0.0] }, "actions[0].velocity"),
         (
-            Action::SetVelocity {
-                entity: EntityId(1),
-                velocity: [MAX_SPEED_MPS * 2.0, 0.0, 0.0],
-            },
-            "actions[0].velocity",
-        ),
-        (
-            Action::FireRay {
-                shooter: EntityId(1),
-                origin: [0.0; 3],
-                direction: [0.0; 3],
-                max_distance_m: 10.0,
-            },
+            Action::FireRay { shooter: EntityId(1), origin: [0.0; 3], direction: [0.0; 3], max_distance_m: 10.0 },
             "actions[0].direction",
         ),
         (
@@ -185,20 +136,12 @@ fn unknown_variants_and_fields_of_the_wrong_type_are_malformed() {
     ];
     for json in cases {
         let err = decode_client(json, Encoding::Json).unwrap_err();
-        assert!(
-            matches!(err, ProtocolError::Malformed { .. }),
-            "{}: {err}",
-            String::from_utf8_lossy(json)
-        );
+        assert!(matches!(err, ProtocolError::Malformed { .. }), "{}: {err}", String::from_utf8_lossy(json));
         // The same document in MessagePack is refused the same way.
         let value: serde_json::Value = serde_json::from_slice(json).unwrap();
         let mp = rmp_serde::to_vec_named(&value).unwrap();
         let err = decode_client(&mp, Encoding::MsgPack).unwrap_err();
-        assert!(
-            matches!(err, ProtocolError::Malformed { .. }),
-            "msgpack {}: {err}",
-            String::from_utf8_lossy(json)
-        );
+        assert!(matches!(err, ProtocolError::Malformed { .. }), "msgpack {}: {err}", String::from_utf8_lossy(json));
     }
 }
 

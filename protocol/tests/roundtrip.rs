@@ -49,12 +49,9 @@ fn messages_are_tagged_maps() {
         client: ClientId(7),
         seq: 1,
         tick: Tick(100),
-        actions: vec![Action::Despawn {
-            entity: EntityId(3),
-        }],
+        actions: vec![Action::Despawn { entity: EntityId(3) }],
     });
-    let json: serde_json::Value =
-        serde_json::from_slice(&encode(&msg, Encoding::Json).unwrap()).unwrap();
+    let json: serde_json::Value = serde_json::from_slice(&encode(&msg, Encoding::Json).unwrap()).unwrap();
     assert_eq!(json["type"], "input");
     assert_eq!(json["actions"][0]["type"], "despawn");
     assert_eq!(json["tick"], 100);

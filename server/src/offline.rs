@@ -43,22 +43,13 @@ pub fn read_inputs(path: &Path) -> Result<InputScript, OfflineError> {
     })?;
     let mut script = InputScript::new();
     for (k, line) in std::io::BufReader::new(f).lines().enumerate() {
-        let line = line.map_err(|e| OfflineError::Inputs {
-            file: file.clone(),
-            line: k + 1,
-            detail: e.to_string(),
-        })?;
+        let line = line.map_err(|e| OfflineError::Inputs { file: file.clone(), line: k + 1, detail: e.to_string() })?;
         let trimmed = line.trim();
         if trimmed.is_empty() || trimmed.starts_with('#') {
             continue;
         }
-        let msg: ClientMessage =
-            impact_protocol::decode(trimmed.as_bytes(), Encoding::Json, MAX_CLIENT_MESSAGE_BYTES)
-                .map_err(|e| OfflineError::Inputs {
-                file: file.clone(),
-                line: k + 1,
-                detail: e.to_string(),
-            })?;
+        let msg: ClientMessage = impact_protocol::decode(trimmed.as_bytes(), Encoding::Json, MAX_CLIENT_MESSAGE_BYTES)
+            .map_err(|e| OfflineError::Inputs { file: file.clone(), line: k + 1, detail: e.to_string() })?;
         let ClientMessage::Input(input) = msg;
         script.entry(input.tick.0).or_default().push(TickInput {
             client: input.client,
@@ -150,11 +141,7 @@ pub fn print_summary(r: &OfflineReport, out: &mut impl Write) -> std::io::Result
         r.wall.as_secs_f64(),
         r.wall.as_secs_f64() * 1e3 / ticks
     )?;
-    writeln!(
-        out,
-        "bodies: {} at start, {} at end",
-        r.bodies.0, r.bodies.1
-    )?;
+    writeln!(out, "bodies: {} at start, {} at end", r.bodies.0, r.bodies.1)?;
     writeln!(out, "events: {}", r.total_events())?;
     for ((phase, response), n) in &r.events {
         writeln!(
@@ -175,16 +162,8 @@ pub fn print_summary(r: &OfflineReport, out: &mut impl Write) -> std::io::Result
     writeln!(out, "time per stage (mean per tick):")?;
     let total: Duration = r.stages.stages().iter().map(|(_, d)| *d).sum();
     for (name, d) in r.stages.stages() {
-        let share = if total.is_zero() {
-            0.0
-        } else {
-            d.as_secs_f64() / total.as_secs_f64() * 100.0
-        };
-        writeln!(
-            out,
-            "  {name:<12} {:>9.4} ms  {share:>5.1} %",
-            d.as_secs_f64() * 1e3 / ticks
-        )?;
+        let share = if total.is_zero() { 0.0 } else { d.as_secs_f64() / total.as_secs_f64() * 100.0 };
+        writeln!(out, "  {name:<12} {:>9.4} ms  {share:>5.1} %", d.as_secs_f64() * 1e3 / ticks)?;
     }
     writeln!(out, "state hash: {:016x}", r.state_hash)
 }

@@ -37,55 +37,27 @@ pub fn client() -> impl Strategy<Value = ClientId> {
 pub fn shape() -> impl Strategy<Value = ShapeSpec> {
     prop_oneof![
         dim().prop_map(|radius_m| ShapeSpec::Sphere { radius_m }),
-        (dim(), dim()).prop_map(|(half_height_m, radius_m)| ShapeSpec::Capsule {
-            half_height_m,
-            radius_m
-        }),
+        (dim(), dim()).prop_map(|(half_height_m, radius_m)| ShapeSpec::Capsule { half_height_m, radius_m }),
         [dim(), dim(), dim()].prop_map(|half_extents_m| ShapeSpec::Cuboid { half_extents_m }),
     ]
 }
 
 pub fn action() -> impl Strategy<Value = Action> {
     prop_oneof![
-        (entity(), small3())
-            .prop_map(|(entity, velocity)| Action::SetVelocity { entity, velocity }),
+        (entity(), small3()).prop_map(|(entity, velocity)| Action::SetVelocity { entity, velocity }),
         (entity(), small3()).prop_map(|(entity, impulse)| Action::ApplyImpulse { entity, impulse }),
-        (shape(), vec3(), small3()).prop_map(|(shape, position, velocity)| {
-            Action::SpawnProjectile {
-                shape,
-                position,
-                velocity,
-            }
+        (shape(), vec3(), small3())
+            .prop_map(|(shape, position, velocity)| { Action::SpawnProjectile { shape, position, velocity } }),
+        (entity(), vec3(), unit3(), 0.1..1.0e4f64).prop_map(|(shooter, origin, direction, max_distance_m)| {
+            Action::FireRay { shooter, origin, direction, max_distance_m }
         }),
-        (entity(), vec3(), unit3(), 0.1..1.0e4f64).prop_map(
-            |(shooter, origin, direction, max_distance_m)| {
-                Action::FireRay {
-                    shooter,
-                    origin,
-                    direction,
-                    max_distance_m,
-                }
-            }
-        ),
         entity().prop_map(|entity| Action::Despawn { entity }),
     ]
 }
 
 pub fn client_message() -> impl Strategy<Value = ClientMessage> {
-    (
-        client(),
-        any::<u32>(),
-        tick(),
-        vec(action(), 0..=limits::MAX_ACTIONS_PER_INPUT),
-    )
-        .prop_map(|(client, seq, tick, actions)| {
-            ClientMessage::Input(ClientInput {
-                client,
-                seq,
-                tick,
-                actions,
-            })
-        })
+    (client(), any::<u32>(), tick(), vec(action(), 0..=limits::MAX_ACTIONS_PER_INPUT))
+        .prop_map(|(client, seq, tick, actions)| ClientMessage::Input(ClientInput { client, seq, tick, actions }))
 }
 
 pub fn event() -> impl Strategy<Value = CollisionEvent> {
@@ -101,34 +73,12 @@ pub fn event() -> impl Strategy<Value = CollisionEvent> {
                 Just(Response::Destroy),
                 Just(Response::Trigger)
             ],
-            prop_oneof![
-                Just(EventStatus::Provisional),
-                Just(EventStatus::Corrected),
-                Just(EventStatus::Confirmed)
-            ],
+            prop_oneof![Just(EventStatus::Provisional), Just(EventStatus::Corrected), Just(EventStatus::Confirmed)],
         ),
     )
-        .prop_map(
-            |(
-                (tick, toi, a, b),
-                (point, normal, depth_m, closing_speed_mps),
-                (phase, response, status),
-            )| {
-                CollisionEvent {
-                    tick,
-                    toi,
-                    a,
-                    b,
-                    point,
-                    normal,
-                    depth_m,
-                    closing_speed_mps,
-                    phase,
-                    response,
-                    status,
-                }
-            },
-        )
+        .prop_map(|((tick, toi, a, b), (point, normal, depth_m, closing_speed_mps), (phase, response, status))| {
+            CollisionEvent { tick, toi, a, b, point, normal, depth_m, closing_speed_mps, phase, response, status }
+        })
 }
 
 fn events() -> impl Strategy<Value = Vec<CollisionEvent>> {
@@ -140,113 +90,42 @@ pub fn reason() -> impl Strategy<Value = RejectReason> {
 }
 
 fn batch() -> impl Strategy<Value = EventBatch> {
-    (tick(), any::<u32>(), events()).prop_map(|(tick, revision, events)| EventBatch {
-        tick,
-        revision,
-        events,
-    })
+    (tick(), any::<u32>(), events()).prop_map(|(tick, revision, events)| EventBatch { tick, revision, events })
 }
 
 pub fn server_message() -> impl Strategy<Value = ServerMessage> {
     prop_oneof![
         batch().prop_map(ServerMessage::Events),
         batch().prop_map(ServerMessage::Confirmed),
-        (tick(), any::<u32>(), events(), events(), events()).prop_map(
-            |(tick, revision, retracted, amended, added)| {
-                ServerMessage::Corrections(CorrectionBatch {
-                    tick,
-                    revision,
-                    retracted,
-                    amended,
-                    added,
-                })
+        (tick(), any::<u32>(), events(), events(), events()).prop_map(|(tick, revision, retracted, amended, added)| {
+            ServerMessage::Corrections(CorrectionBatch { tick, revision, retracted, amended, added })
+        }),
+        (client(), any::<u32>(), tick(), tick(), tick()).prop_map(|(client, seq, tick, applied_tick, server_tick)| {
+            ServerMessage::Ack(InputAck { client, seq, tick, applied_tick, server_tick })
+        }),
+        (client(), any::<u32>(), tick(), reason(), "[a-z ]{0,40}", option::of(tick()), option::of(tick())).prop_map(
+            |(client, seq, tick, reason, detail, oldest_tick, newest_tick)| {
+                ServerMessage::Reject(InputReject { client, seq, tick, reason, detail, oldest_tick, newest_tick })
             }
         ),
-        (client(), any::<u32>(), tick(), tick(), tick()).prop_map(
-            |(client, seq, tick, applied_tick, server_tick)| {
-                ServerMessage::Ack(InputAck {
-                    client,
-                    seq,
-                    tick,
-                    applied_tick,
-                    server_tick,
-                })
-            }
-        ),
-        (
-            client(),
-            any::<u32>(),
-            tick(),
-            reason(),
-            "[a-z ]{0,40}",
-            option::of(tick()),
-            option::of(tick())
-        )
-            .prop_map(
-                |(client, seq, tick, reason, detail, oldest_tick, newest_tick)| {
-                    ServerMessage::Reject(InputReject {
-                        client,
-                        seq,
-                        tick,
-                        reason,
-                        detail,
-                        oldest_tick,
-                        newest_tick,
-                    })
-                }
-            ),
-        (
-            client(),
-            any::<u32>(),
-            tick(),
-            entity(),
-            option::of((entity(), vec3(), unit3(), 0.0..1.0e4f64))
-        )
-            .prop_map(|(client, seq, tick, shooter, hit)| {
+        (client(), any::<u32>(), tick(), entity(), option::of((entity(), vec3(), unit3(), 0.0..1.0e4f64))).prop_map(
+            |(client, seq, tick, shooter, hit)| {
                 ServerMessage::RayResult(RayResult {
                     client,
                     seq,
                     tick,
                     shooter,
-                    hit: hit.map(|(entity, point, normal, distance_m)| RayHit {
-                        entity,
-                        point,
-                        normal,
-                        distance_m,
-                    }),
+                    hit: hit.map(|(entity, point, normal, distance_m)| RayHit { entity, point, normal, distance_m }),
                 })
-            }),
-        (
-            client(),
-            option::of(entity()),
-            tick(),
-            1..1000u32,
-            0..1000u32
-        )
-            .prop_map(|(client, avatar, tick, tick_hz, window_ticks)| {
-                ServerMessage::Welcome(Welcome {
-                    client,
-                    avatar,
-                    tick,
-                    tick_hz,
-                    window_ticks,
-                })
-            }),
-        (
-            tick(),
-            any::<u64>(),
-            vec(
-                (
-                    entity(),
-                    "[a-z]{1,10}",
-                    option::of(client()),
-                    vec3(),
-                    small3()
-                ),
-                0..5
-            )
-        )
-            .prop_map(|(tick, state_hash, bodies)| {
+            }
+        ),
+        (client(), option::of(entity()), tick(), 1..1000u32, 0..1000u32).prop_map(
+            |(client, avatar, tick, tick_hz, window_ticks)| {
+                ServerMessage::Welcome(Welcome { client, avatar, tick, tick_hz, window_ticks })
+            }
+        ),
+        (tick(), any::<u64>(), vec((entity(), "[a-z]{1,10}", option::of(client()), vec3(), small3()), 0..5)).prop_map(
+            |(tick, state_hash, bodies)| {
                 ServerMessage::Snapshot(WorldSnapshot {
                     tick,
                     state_hash,
@@ -261,10 +140,13 @@ pub fn server_message() -> impl Strategy<Value = ServerMessage> {
                         })
                         .collect(),
                 })
-            }),
-        (tick(), tick(), events()).prop_map(|(from, to, events)| ServerMessage::History(
-            EventHistory { from, to, events }
-        )),
+            }
+        ),
+        (tick(), tick(), events()).prop_map(|(from, to, events)| ServerMessage::History(EventHistory {
+            from,
+            to,
+            events
+        })),
         (
             tick(),
             (0.0..100.0f64, 0.0..100.0f64, 0.0..100.0f64),

@@ -43,22 +43,14 @@ fn main() -> Result<()> {
     if !args.offline {
         bail!("the network runtime is not built yet: run with --offline (see README.md)");
     }
-    let plan = if args.general {
-        Plan::general(&scene.world)
-    } else {
-        Plan::for_world(&scene.world)
-    };
+    let plan = if args.general { Plan::general(&scene.world) } else { Plan::for_world(&scene.world) };
     println!(
         "scene {} ({}): {} dynamic, {} static bodies{}",
         scene.name,
         args.scene.display(),
         scene.world.bodies.len(),
         scene.world.statics.id.len(),
-        if scene.world.statics.terrain.is_some() {
-            ", terrain"
-        } else {
-            ""
-        }
+        if scene.world.statics.terrain.is_some() { ", terrain" } else { "" }
     );
     println!("{plan}");
     let inputs = match &args.inputs {
@@ -100,10 +92,7 @@ fn main() -> Result<()> {
             if last.elapsed().as_secs_f64() >= 1.0 || done == ticks {
                 last = Instant::now();
                 if tty {
-                    eprint!(
-                        "\r  tick {done}/{ticks} ({:.0} %)   ",
-                        f64::from(done) / f64::from(ticks.max(1)) * 100.0
-                    );
+                    eprint!("\r  tick {done}/{ticks} ({:.0} %)   ", f64::from(done) / f64::from(ticks.max(1)) * 100.0);
                     if done == ticks {
                         eprintln!();
                     }

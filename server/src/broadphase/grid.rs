@@ -130,11 +130,7 @@ impl Grid {
             let q = (b.min - origin) / self.cell;
             [q.x as i64, q.y as i64, q.z as i64] // non-negative: truncation is floor
         }));
-        let span = if n == 0 {
-            DVec3::ZERO
-        } else {
-            (top - origin) / self.cell
-        };
+        let span = if n == 0 { DVec3::ZERO } else { (top - origin) / self.cell };
         // Padded dimensions; f64 so a huge sparse world cannot overflow the product.
         let dims = [span.x, span.y, span.z].map(|s| s.floor() + 3.0);
         let total = dims[0] * dims[1] * dims[2];
@@ -169,11 +165,7 @@ impl Grid {
             let k = self.bucket_of[i] as usize;
             let at = self.cursor[k] as usize;
             self.cursor[k] += 1;
-            self.entries[at] = Entry {
-                min: b.min,
-                max: b.max,
-                body: i as u32,
-            };
+            self.entries[at] = Entry { min: b.min, max: b.max, body: i as u32 };
             sorted_cells[at] = unsorted[i];
         }
         self.cells = sorted_cells;
@@ -243,17 +235,11 @@ impl Grid {
                 hi[k] = hi[k].min(self.dims[k] - 3);
             }
         }
-        let span = (0..3)
-            .map(|k| (hi[k] - lo[k] + 1).max(0) as u128)
-            .product::<u128>();
+        let span = (0..3).map(|k| (hi[k] - lo[k] + 1).max(0) as u128).product::<u128>();
         if span > 4096 {
             return super::brute::query(aabbs, query, out);
         }
-        let q = Entry {
-            min: query.min,
-            max: query.max,
-            body: 0,
-        };
+        let q = Entry { min: query.min, max: query.max, body: 0 };
         for z in lo[2]..=hi[2] {
             for y in lo[1]..=hi[1] {
                 for x in lo[0]..=hi[0] {

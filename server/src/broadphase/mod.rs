@@ -51,11 +51,7 @@ pub struct Broadphase {
 impl Broadphase {
     /// A broadphase of the given kind.
     pub fn new(kind: BroadphaseKind) -> Broadphase {
-        Broadphase {
-            kind,
-            sap: sap::Sap::default(),
-            grid: grid::Grid::default(),
-        }
+        Broadphase { kind, sap: sap::Sap::default(), grid: grid::Grid::default() }
     }
 
     /// The method in use.
@@ -127,15 +123,9 @@ impl StaticIndex {
     pub fn new(aabbs: &[Aabb]) -> StaticIndex {
         let bvh = (aabbs.len() >= Self::BVH_MIN).then(|| {
             let leaves: Vec<_> = aabbs.iter().map(outward).collect();
-            parry::partitioning::Bvh::from_leaves(
-                parry::partitioning::BvhBuildStrategy::Binned,
-                &leaves,
-            )
+            parry::partitioning::Bvh::from_leaves(parry::partitioning::BvhBuildStrategy::Binned, &leaves)
         });
-        StaticIndex {
-            bvh,
-            boxes: aabbs.to_vec(),
-        }
+        StaticIndex { bvh, boxes: aabbs.to_vec() }
     }
 
     /// Fewest static bodies for which the BVH is built.
@@ -163,20 +153,14 @@ mod tests {
 
     fn boxes() -> impl Strategy<Value = Vec<Aabb>> {
         proptest::collection::vec(
-            (
-                (-50.0..50.0f64, -50.0..50.0f64, -50.0..50.0f64),
-                (0.01..6.0f64, 0.01..6.0f64, 0.01..6.0f64),
-            ),
+            ((-50.0..50.0f64, -50.0..50.0f64, -50.0..50.0f64), (0.01..6.0f64, 0.01..6.0f64, 0.01..6.0f64)),
             0..120,
         )
         .prop_map(|v| {
             v.into_iter()
                 .map(|((x, y, z), (w, h, d))| {
                     let min = DVec3::new(x, y, z);
-                    Aabb {
-                        min,
-                        max: min + DVec3::new(w, h, d),
-                    }
+                    Aabb { min, max: min + DVec3::new(w, h, d) }
                 })
                 .collect()
         })

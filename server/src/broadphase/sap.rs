@@ -23,9 +23,7 @@ impl Sap {
             self.order.clear();
             self.order.extend(0..n as u32);
             let axis = self.axis;
-            self.order.sort_by(|&a, &b| {
-                aabbs[a as usize].min[axis].total_cmp(&aabbs[b as usize].min[axis])
-            });
+            self.order.sort_by(|&a, &b| aabbs[a as usize].min[axis].total_cmp(&aabbs[b as usize].min[axis]));
         } else {
             let axis = self.axis;
             let key = |i: u32| aabbs[i as usize].min[axis];
@@ -67,7 +65,5 @@ fn widest_axis(aabbs: &[Aabb]) -> usize {
             hi[k] = hi[k].max(c[k]);
         }
     }
-    (0..3)
-        .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
-        .unwrap_or(0)
+    (0..3).max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b]))).unwrap_or(0)
 }

@@ -28,11 +28,7 @@ pub fn closest_between_segments(p1: DVec3, q1: DVec3, p2: DVec3, q2: DVec3) -> (
         } else {
             let b = d1.dot(d2);
             let denom = a * e - b * b;
-            let mut s0 = if denom > 1e-12 * a * e {
-                ((b * f - c * e) / denom).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
+            let mut s0 = if denom > 1e-12 * a * e { ((b * f - c * e) / denom).clamp(0.0, 1.0) } else { 0.0 };
             let mut t0 = (b * s0 + f) / e;
             if t0 < 0.0 {
                 t0 = 0.0;
@@ -49,20 +45,9 @@ pub fn closest_between_segments(p1: DVec3, q1: DVec3, p2: DVec3, q2: DVec3) -> (
 }
 
 /// Contact between capsule 1 at the origin and capsule 2 at `d` (segments along local y).
-pub fn contact(
-    h1: f64,
-    r1: f64,
-    rot1: DQuat,
-    h2: f64,
-    r2: f64,
-    rot2: DQuat,
-    d: DVec3,
-) -> Option<Contact> {
+pub fn contact(h1: f64, r1: f64, rot1: DQuat, h2: f64, r2: f64, rot2: DQuat, d: DVec3) -> Option<Contact> {
     let a1 = rot1 * DVec3::new(0.0, h1, 0.0);
     let a2 = rot2 * DVec3::new(0.0, h2, 0.0);
     let (c1, c2) = closest_between_segments(-a1, a1, d - a2, d + a2);
-    sphere_sphere::contact(r1, r2, c2 - c1).map(|c| Contact {
-        point: c.point + c1,
-        ..c
-    })
+    sphere_sphere::contact(r1, r2, c2 - c1).map(|c| Contact { point: c.point + c1, ..c })
 }

@@ -28,13 +28,7 @@ impl SupportMap for Support<'_> {
 fn with_parry<R>(s: &Shape, f: impl FnOnce(&dyn parry::shape::Shape) -> R) -> Option<R> {
     Some(match s {
         Shape::Sphere { radius } => f(&parry::shape::Ball::new(*radius as f32)),
-        Shape::Capsule {
-            half_height,
-            radius,
-        } => f(&parry::shape::Capsule::new_y(
-            *half_height as f32,
-            *radius as f32,
-        )),
+        Shape::Capsule { half_height, radius } => f(&parry::shape::Capsule::new_y(*half_height as f32, *radius as f32)),
         Shape::Cuboid { half_extents } => f(&parry::shape::Cuboid::new(half_extents.as_vec3())),
         Shape::Convex(hull) => f(&hull.parry),
         Shape::TriMesh(mesh) => f(mesh.as_ref()),
@@ -46,23 +40,11 @@ fn with_parry<R>(s: &Shape, f: impl FnOnce(&dyn parry::shape::Shape) -> R) -> Op
 /// `rb`) at `d`, or `None` when farther apart than `margin`. Shapes parry knows go through its
 /// query dispatcher (which keeps spheres and capsules round: a point or segment plus a margin);
 /// the ellipsoid goes through GJK/EPA on its support function.
-pub fn contact(
-    a: &Shape,
-    ra: DQuat,
-    b: &Shape,
-    rb: DQuat,
-    d: DVec3,
-    margin: f64,
-) -> Option<Contact> {
+pub fn contact(a: &Shape, ra: DQuat, b: &Shape, rb: DQuat, d: DVec3, margin: f64) -> Option<Contact> {
     let inv = ra.inverse();
     let pos12 = Pose::from_parts((inv * d).as_vec3(), (inv * rb).normalize().as_quat());
     let dispatched = with_parry(a, |pa| {
-        with_parry(b, |pb| {
-            parry::query::DefaultQueryDispatcher
-                .contact(&pos12, pa, pb, margin as f32)
-                .ok()
-                .flatten()
-        })
+        with_parry(b, |pb| parry::query::DefaultQueryDispatcher.contact(&pos12, pa, pb, margin as f32).ok().flatten())
     })
     .flatten();
     let c = match dispatched {
@@ -76,11 +58,7 @@ pub fn contact(
 /// relative to `a`'s centre, world-oriented).
 pub fn contact_triangle(a: &Shape, ra: DQuat, tri: [DVec3; 3], margin: f64) -> Option<Contact> {
     let inv = ra.inverse();
-    let t = parry::shape::Triangle::new(
-        (inv * tri[0]).as_vec3(),
-        (inv * tri[1]).as_vec3(),
-        (inv * tri[2]).as_vec3(),
-    );
+    let t = parry::shape::Triangle::new((inv * tri[0]).as_vec3(), (inv * tri[1]).as_vec3(), (inv * tri[2]).as_vec3());
     let pos12 = Pose::identity();
     let c = contact_support_map_support_map(&pos12, &Support(a), &t, margin as f32)?;
     Some(from_parry(&c, &pos12, ra))

@@ -20,18 +20,12 @@ pub fn contact(
     let inv = rm.inverse();
     // `a`'s bounds in the mesh frame.
     let centre_in_mesh = inv * -d;
-    let bounds = a
-        .world_aabb(centre_in_mesh, inv * ra)
-        .inflated(margin.max(0.0));
+    let bounds = a.world_aabb(centre_in_mesh, inv * ra).inflated(margin.max(0.0));
     let query = parry::bounding_volume::Aabb::new(bounds.min.as_vec3(), bounds.max.as_vec3());
     let mut best: Option<Contact> = None;
     for i in mesh.bvh().intersect_aabb(&query) {
         let t = mesh.triangle(i);
-        let tri = [
-            d + rm * t.a.as_dvec3(),
-            d + rm * t.b.as_dvec3(),
-            d + rm * t.c.as_dvec3(),
-        ];
+        let tri = [d + rm * t.a.as_dvec3(), d + rm * t.b.as_dvec3(), d + rm * t.c.as_dvec3()];
         let c = match a {
             Shape::Sphere { radius } => sphere_triangle::contact(*radius, tri[0], tri[1], tri[2]),
             _ => general::contact_triangle(a, ra, tri, margin),

@@ -38,11 +38,7 @@ pub struct Contact {
 impl Contact {
     /// The same contact seen from `b`: normal reversed, point moved to `b`'s frame.
     pub fn flipped(self, d: DVec3) -> Contact {
-        Contact {
-            point: self.point - d,
-            normal: -self.normal,
-            depth: self.depth,
-        }
+        Contact { point: self.point - d, normal: -self.normal, depth: self.depth }
     }
 }
 
@@ -81,51 +77,25 @@ impl Kernel {
 
 /// Contact between `a` at the origin and `b` at `d`, or `None` when they are farther apart than
 /// `margin` (m). With `margin = 0` this is the overlap test (touching counts as apart).
-pub fn contact(
-    a: &Shape,
-    ra: DQuat,
-    b: &Shape,
-    rb: DQuat,
-    d: DVec3,
-    margin: f64,
-) -> Option<Contact> {
+pub fn contact(a: &Shape, ra: DQuat, b: &Shape, rb: DQuat, d: DVec3, margin: f64) -> Option<Contact> {
     let c = match (a, b) {
-        (Shape::Sphere { radius: r1 }, Shape::Sphere { radius: r2 }) => {
-            sphere_sphere::contact(*r1, *r2, d)
+        (Shape::Sphere { radius: r1 }, Shape::Sphere { radius: r2 }) => sphere_sphere::contact(*r1, *r2, d),
+        (Shape::Sphere { radius }, Shape::Capsule { half_height, radius: rc }) => {
+            sphere_capsule::contact(*radius, *half_height, *rc, rb, d)
         }
-        (
-            Shape::Sphere { radius },
-            Shape::Capsule {
-                half_height,
-                radius: rc,
-            },
-        ) => sphere_capsule::contact(*radius, *half_height, *rc, rb, d),
-        (
-            Shape::Capsule {
-                half_height,
-                radius: rc,
-            },
-            Shape::Sphere { radius },
-        ) => sphere_capsule::contact(*radius, *half_height, *rc, ra, -d).map(|c| c.flipped(-d)),
-        (
-            Shape::Capsule {
-                half_height: h1,
-                radius: r1,
-            },
-            Shape::Capsule {
-                half_height: h2,
-                radius: r2,
-            },
-        ) => capsule_capsule::contact(*h1, *r1, ra, *h2, *r2, rb, d),
+        (Shape::Capsule { half_height, radius: rc }, Shape::Sphere { radius }) => {
+            sphere_capsule::contact(*radius, *half_height, *rc, ra, -d).map(|c| c.flipped(-d))
+        }
+        (Shape::Capsule { half_height: h1, radius: r1 }, Shape::Capsule { half_height: h2, radius: r2 }) => {
+            capsule_capsule::contact(*h1, *r1, ra, *h2, *r2, rb, d)
+        }
         (Shape::Sphere { radius }, Shape::Cuboid { half_extents }) => {
             sphere_cuboid::contact(*radius, *half_extents, rb, d)
         }
         (Shape::Cuboid { half_extents }, Shape::Sphere { radius }) => {
             sphere_cuboid::contact(*radius, *half_extents, ra, -d).map(|c| c.flipped(-d))
         }
-        (Shape::TriMesh(mesh), _) => {
-            mesh::contact(b, rb, mesh, ra, -d, margin).map(|c| c.flipped(-d))
-        }
+        (Shape::TriMesh(mesh), _) => mesh::contact(b, rb, mesh, ra, -d, margin).map(|c| c.flipped(-d)),
         (_, Shape::TriMesh(mesh)) => mesh::contact(a, ra, mesh, rb, d, margin),
         _ => return general::contact(a, ra, b, rb, d, margin),
     };
@@ -150,20 +120,15 @@ mod tests {
     fn shapes() -> impl Strategy<Value = Shape> {
         prop_oneof![
             (0.05..2.0f64).prop_map(|radius| Shape::Sphere { radius }),
-            (0.05..2.0f64, 0.05..1.0f64).prop_map(|(half_height, radius)| Shape::Capsule {
-                half_height,
-                radius
-            }),
-            (0.05..2.0f64, 0.05..2.0f64, 0.05..2.0f64).prop_map(|(x, y, z)| Shape::Cuboid {
-                half_extents: DVec3::new(x, y, z)
-            }),
+            (0.05..2.0f64, 0.05..1.0f64).prop_map(|(half_height, radius)| Shape::Capsule { half_height, radius }),
+            (0.05..2.0f64, 0.05..2.0f64, 0.05..2.0f64)
+                .prop_map(|(x, y, z)| Shape::Cuboid { half_extents: DVec3::new(x, y, z) }),
         ]
     }
 
     fn rotation() -> impl Strategy<Value = DQuat> {
-        (-1.0..1.0f64, -1.0..1.0f64, -1.0..1.0f64, -3.0..3.0f64).prop_map(|(x, y, z, angle)| {
-            DQuat::from_axis_angle(DVec3::new(x, y, z + 1e-3).normalize(), angle)
-        })
+        (-1.0..1.0f64, -1.0..1.0f64, -1.0..1.0f64, -3.0..3.0f64)
+            .prop_map(|(x, y, z, angle)| DQuat::from_axis_angle(DVec3::new(x, y, z + 1e-3).normalize(), angle))
     }
 
     proptest! {

@@ -39,11 +39,7 @@ pub fn contact(r: f64, half: DVec3, rot: DQuat, d: DVec3) -> Option<Contact> {
     let depth = r - dist;
     // Midpoint between the sphere surface point and the box surface point.
     let sphere_point = normal * r;
-    Some(Contact {
-        point: (box_point + sphere_point) * 0.5,
-        normal,
-        depth,
-    })
+    Some(Contact { point: (box_point + sphere_point) * 0.5, normal, depth })
 }
 
 #[cfg(test)]

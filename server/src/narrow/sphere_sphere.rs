@@ -13,11 +13,7 @@ pub fn contact(r1: f64, r2: f64, d: DVec3) -> Option<Contact> {
     let depth = r1 + r2 - dist;
     // Midpoint between the two surface points along the normal.
     let point = normal * (r1 - 0.5 * depth);
-    Some(Contact {
-        point,
-        normal,
-        depth,
-    })
+    Some(Contact { point, normal, depth })
 }
 
 #[cfg(test)]

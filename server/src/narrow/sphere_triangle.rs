@@ -47,11 +47,7 @@ pub fn contact(r: f64, a: DVec3, b: DVec3, c: DVec3) -> Option<Contact> {
     let q = closest_on_triangle(DVec3::ZERO, a, b, c);
     if q.length_squared() == 0.0 {
         let n = (b - a).cross(c - a).normalize_or(DVec3::Y);
-        return Some(Contact {
-            point: DVec3::ZERO,
-            normal: -n,
-            depth: r,
-        });
+        return Some(Contact { point: DVec3::ZERO, normal: -n, depth: r });
     }
     sphere_sphere::contact(r, 0.0, q)
 }

@@ -11,13 +11,7 @@ use glam::{DQuat, DVec3};
 /// Contact between `shape` (orientation `rot`) centred at world position `pos` and the field,
 /// in the shape's pair frame (shape at the origin, normal pointing from the shape into the
 /// terrain), or `None` when nothing is within `margin`.
-pub fn terrain_contact(
-    shape: &Shape,
-    rot: DQuat,
-    pos: DVec3,
-    field: &HeightField,
-    margin: f64,
-) -> Option<Contact> {
+pub fn terrain_contact(shape: &Shape, rot: DQuat, pos: DVec3, field: &HeightField, margin: f64) -> Option<Contact> {
     let bounds = shape.world_aabb(pos, rot).inflated(margin.max(0.0));
     let mut best: Option<Contact> = None;
     let mut consider = |c: Option<Contact>| {

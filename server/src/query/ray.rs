@@ -12,18 +12,9 @@ use rapier3d::parry::query::RayCast;
 
 /// The first hit of the ray `origin + s * dir` (`dir` unit, `0 <= s <= max_m`), skipping
 /// `exclude` (the shooter).
-pub fn cast(
-    w: &World,
-    origin: DVec3,
-    dir: DVec3,
-    max_m: f64,
-    exclude: Option<EntityId>,
-) -> Option<RayHit> {
+pub fn cast(w: &World, origin: DVec3, dir: DVec3, max_m: f64, exclude: Option<EntityId>) -> Option<RayHit> {
     let end = origin + dir * max_m;
-    let ray_box = Aabb {
-        min: origin.min(end),
-        max: origin.max(end),
-    };
+    let ray_box = Aabb { min: origin.min(end), max: origin.max(end) };
     let mut best: Option<(f64, EntityId, DVec3)> = None;
     let mut consider = |hit: Option<(f64, DVec3)>, id: EntityId| {
         if let Some((s, n)) = hit {
@@ -40,20 +31,14 @@ pub fn cast(
         if !b.shape[i].world_aabb(b.pos[i], b.rot[i]).overlaps(&ray_box) {
             continue;
         }
-        consider(
-            cast_shape(&b.shape[i], b.pos[i], b.rot[i], origin, dir, max_m),
-            b.id[i],
-        );
+        consider(cast_shape(&b.shape[i], b.pos[i], b.rot[i], origin, dir, max_m), b.id[i]);
     }
     let s = &w.statics;
     for k in 0..s.id.len() {
         if Some(s.id[k]) == exclude || !s.aabb[k].overlaps(&ray_box) {
             continue;
         }
-        consider(
-            cast_shape(&s.shape[k], s.pos[k], s.rot[k], origin, dir, max_m),
-            s.id[k],
-        );
+        consider(cast_shape(&s.shape[k], s.pos[k], s.rot[k], origin, dir, max_m), s.id[k]);
     }
     if let Some(t) = &s.terrain {
         consider(cast_heightfield(&t.field, origin, dir, max_m), t.id);
@@ -84,20 +69,15 @@ pub fn cast_shape(
         _ => {
             let ray = parry::query::Ray::new(o.as_vec3(), d.as_vec3());
             let hit = match shape {
-                Shape::Capsule {
-                    half_height,
-                    radius,
-                } => parry::shape::Capsule::new_y(*half_height as f32, *radius as f32)
-                    .cast_local_ray_and_get_normal(&ray, max_m as f32, true),
+                Shape::Capsule { half_height, radius } => parry::shape::Capsule::new_y(
+                    *half_height as f32,
+                    *radius as f32,
+                )
+                .cast_local_ray_and_get_normal(&ray, max_m as f32, true),
                 Shape::Cuboid { half_extents } => parry::shape::Cuboid::new(half_extents.as_vec3())
                     .cast_local_ray_and_get_normal(&ray, max_m as f32, true),
-                Shape::Convex(hull) => {
-                    hull.parry
-                        .cast_local_ray_and_get_normal(&ray, max_m as f32, true)
-                }
-                Shape::TriMesh(mesh) => {
-                    mesh.cast_local_ray_and_get_normal(&ray, max_m as f32, true)
-                }
+                Shape::Convex(hull) => hull.parry.cast_local_ray_and_get_normal(&ray, max_m as f32, true),
+                Shape::TriMesh(mesh) => mesh.cast_local_ray_and_get_normal(&ray, max_m as f32, true),
                 Shape::Sphere { .. } | Shape::Ellipsoid { .. } => {
                     unreachable!("handled analytically")
                 }
@@ -161,12 +141,7 @@ fn ray_triangle(o: DVec3, d: DVec3, t: &[DVec3; 3]) -> Option<f64> {
 }
 
 /// Walks the cells the ray crosses in x-z, in order, and returns the first triangle hit.
-fn cast_heightfield(
-    field: &HeightField,
-    origin: DVec3,
-    dir: DVec3,
-    max_m: f64,
-) -> Option<(f64, DVec3)> {
+fn cast_heightfield(field: &HeightField, origin: DVec3, dir: DVec3, max_m: f64) -> Option<(f64, DVec3)> {
     let bounds = field.aabb();
     // Clip the ray to the field's box.
     let (mut s0, mut s1) = (0.0f64, max_m);
@@ -191,24 +166,13 @@ fn cast_heightfield(
     let cell = field.cell_size();
     let step = 0.5 * cell.0.min(cell.1);
     let horizontal = (dir.x * dir.x + dir.z * dir.z).sqrt();
-    let steps = if horizontal > 0.0 {
-        (((s1 - s0) * horizontal) / step).ceil() as usize + 1
-    } else {
-        1
-    };
+    let steps = if horizontal > 0.0 { (((s1 - s0) * horizontal) / step).ceil() as usize + 1 } else { 1 };
     let steps = steps.min(4 * (ext.x / cell.0 + ext.z / cell.1) as usize + 8);
     let mut best: Option<(f64, DVec3)> = None;
     for k in 0..=steps {
-        let s = if steps == 0 {
-            s0
-        } else {
-            s0 + (s1 - s0) * k as f64 / steps as f64
-        };
+        let s = if steps == 0 { s0 } else { s0 + (s1 - s0) * k as f64 / steps as f64 };
         let p = origin + dir * s;
-        let probe = Aabb {
-            min: p - DVec3::new(step, 0.0, step),
-            max: p + DVec3::new(step, 0.0, step),
-        };
+        let probe = Aabb { min: p - DVec3::new(step, 0.0, step), max: p + DVec3::new(step, 0.0, step) };
         let probe = Aabb {
             min: DVec3::new(probe.min.x, bounds.min.y, probe.min.z),
             max: DVec3::new(probe.max.x, bounds.max.y, probe.max.z),
@@ -237,72 +201,22 @@ mod tests {
     #[test]
     fn sphere_and_box_hits_hand_computed() {
         let s = Shape::Sphere { radius: 1.0 };
-        let (d, n) = cast_shape(
-            &s,
-            DVec3::new(10.0, 0.0, 0.0),
-            DQuat::IDENTITY,
-            DVec3::ZERO,
-            DVec3::X,
-            100.0,
-        )
-        .unwrap();
+        let (d, n) = cast_shape(&s, DVec3::new(10.0, 0.0, 0.0), DQuat::IDENTITY, DVec3::ZERO, DVec3::X, 100.0).unwrap();
         assert!((d - 9.0).abs() < 1e-12);
         assert!((n + DVec3::X).length() < 1e-12);
-        assert!(cast_shape(
-            &s,
-            DVec3::new(10.0, 1.5, 0.0),
-            DQuat::IDENTITY,
-            DVec3::ZERO,
-            DVec3::X,
-            100.0
-        )
-        .is_none());
+        assert!(cast_shape(&s, DVec3::new(10.0, 1.5, 0.0), DQuat::IDENTITY, DVec3::ZERO, DVec3::X, 100.0).is_none());
         assert!(
-            cast_shape(
-                &s,
-                DVec3::new(10.0, 0.0, 0.0),
-                DQuat::IDENTITY,
-                DVec3::ZERO,
-                DVec3::X,
-                8.0
-            )
-            .is_none()
-                || cast_shape(
-                    &s,
-                    DVec3::new(10.0, 0.0, 0.0),
-                    DQuat::IDENTITY,
-                    DVec3::ZERO,
-                    DVec3::X,
-                    8.0
-                )
-                .unwrap()
-                .0 > 8.0
+            cast_shape(&s, DVec3::new(10.0, 0.0, 0.0), DQuat::IDENTITY, DVec3::ZERO, DVec3::X, 8.0).is_none()
+                || cast_shape(&s, DVec3::new(10.0, 0.0, 0.0), DQuat::IDENTITY, DVec3::ZERO, DVec3::X, 8.0).unwrap().0
+                    > 8.0
         );
-        let b = Shape::Cuboid {
-            half_extents: DVec3::new(0.5, 2.0, 2.0),
-        };
-        let (d, n) = cast_shape(
-            &b,
-            DVec3::new(0.0, 0.0, 5.0),
-            DQuat::IDENTITY,
-            DVec3::ZERO,
-            DVec3::Z,
-            100.0,
-        )
-        .unwrap();
+        let b = Shape::Cuboid { half_extents: DVec3::new(0.5, 2.0, 2.0) };
+        let (d, n) = cast_shape(&b, DVec3::new(0.0, 0.0, 5.0), DQuat::IDENTITY, DVec3::ZERO, DVec3::Z, 100.0).unwrap();
         assert!((d - 3.0).abs() < 1e-5, "{d}");
         assert!((n + DVec3::Z).length() < 1e-5);
         // Far from the origin the local frame keeps it exact.
         let far = DVec3::new(1.0e7, 0.0, 0.0);
-        let (d, _) = cast_shape(
-            &s,
-            far + DVec3::new(10.0, 0.0, 0.0),
-            DQuat::IDENTITY,
-            far,
-            DVec3::X,
-            100.0,
-        )
-        .unwrap();
+        let (d, _) = cast_shape(&s, far + DVec3::new(10.0, 0.0, 0.0), DQuat::IDENTITY, far, DVec3::X, 100.0).unwrap();
         assert!((d - 9.0).abs() < 1e-9);
     }
 
@@ -318,10 +232,7 @@ mod tests {
         let dir = DVec3::new(1.0, -0.1, 0.0).normalize();
         let (d, _) = cast_heightfield(&f, DVec3::new(-5.0, 1.0, 5.0), dir, 100.0).unwrap();
         let hit = DVec3::new(-5.0, 1.0, 5.0) + dir * d;
-        assert!(
-            (hit.y).abs() < 1e-9 && (hit.x - 5.0).abs() < 1e-9,
-            "{hit:?}"
-        );
+        assert!((hit.y).abs() < 1e-9 && (hit.x - 5.0).abs() < 1e-9, "{hit:?}");
         assert!(cast_heightfield(&f, DVec3::new(3.0, 1.0, 3.0), DVec3::Y, 100.0).is_none());
     }
 }

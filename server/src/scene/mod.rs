@@ -1,4 +1,4 @@
-//! Scenes: the TOML format ([`format`]), and loading a file into a [`World`] with errors that
+//! Scenes: the TOML format ([`format`](mod@format)), and loading a file into a [`World`] with errors that
 //! name the file, the entry and what is wrong. See SCENES.md.
 
 pub mod format;
@@ -6,9 +6,7 @@ pub mod random;
 
 use crate::broadphase::StaticIndex;
 use crate::sim::shape::Shape;
-use crate::sim::world::{
-    Bodies, ClassId, ClassProps, Classes, NewBody, Rule, SimConfig, StaticWorld, Terrain, World,
-};
+use crate::sim::world::{Bodies, ClassId, ClassProps, Classes, NewBody, Rule, SimConfig, StaticWorld, Terrain, World};
 use crate::terrain::heightfield::HeightField;
 use crate::toi::bisect::BisectConfig;
 use format::*;
@@ -76,11 +74,7 @@ impl Scene {
                     format!("line {line}")
                 })
                 .unwrap_or_else(|| "document".into());
-            SceneError {
-                file: file.into(),
-                entry,
-                detail: e.message().to_string(),
-            }
+            SceneError { file: file.into(), entry, detail: e.message().to_string() }
         })?;
         Builder { file: file.into() }.build(&def)
     }
@@ -88,10 +82,7 @@ impl Scene {
     /// The bundled scene by name (`arena`, `breakout`, `corridor`, `terrain`, `bullets`), from
     /// the `scenes/` directory of the repository.
     pub fn bundled_path(name: &str) -> PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("..")
-            .join("scenes")
-            .join(format!("{name}.toml"))
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join("scenes").join(format!("{name}.toml"))
     }
 }
 
@@ -117,20 +108,13 @@ fn finite3(v: [f64; 3]) -> bool {
 
 impl Builder {
     fn err(&self, entry: impl Into<String>, detail: impl Into<String>) -> SceneError {
-        SceneError {
-            file: self.file.clone(),
-            entry: entry.into(),
-            detail: detail.into(),
-        }
+        SceneError { file: self.file.clone(), entry: entry.into(), detail: detail.into() }
     }
 
     fn class(&self, classes: &Classes, name: &str, entry: &str) -> Result<ClassId, SceneError> {
         classes.by_name(name).ok_or_else(|| {
             let known: Vec<&str> = classes.props.iter().map(|p| p.name.as_str()).collect();
-            self.err(
-                entry,
-                format!("unknown class {name:?} (classes: {})", known.join(", ")),
-            )
+            self.err(entry, format!("unknown class {name:?} (classes: {})", known.join(", ")))
         })
     }
 
@@ -138,22 +122,16 @@ impl Builder {
         if x.is_finite() && x > 0.0 && x <= 1.0e6 {
             Ok(x)
         } else {
-            Err(self.err(
-                entry,
-                format!("{x} must be a positive finite length (m), at most 1e6"),
-            ))
+            Err(self.err(entry, format!("{x} must be a positive finite length (m), at most 1e6")))
         }
     }
 
     fn shape(&self, s: &ShapeDef, entry: &str, is_static: bool) -> Result<Shape, SceneError> {
         Ok(match s {
-            ShapeDef::Sphere { radius_m } => Shape::Sphere {
-                radius: self.dim(*radius_m, &format!("{entry}.radius_m"))?,
-            },
-            ShapeDef::Capsule {
-                half_height_m,
-                radius_m,
-            } => Shape::Capsule {
+            ShapeDef::Sphere { radius_m } => {
+                Shape::Sphere { radius: self.dim(*radius_m, &format!("{entry}.radius_m"))? }
+            }
+            ShapeDef::Capsule { half_height_m, radius_m } => Shape::Capsule {
                 half_height: self.dim(*half_height_m, &format!("{entry}.half_height_m"))?,
                 radius: self.dim(*radius_m, &format!("{entry}.radius_m"))?,
             },
@@ -161,17 +139,13 @@ impl Builder {
                 for (k, h) in half_extents_m.iter().enumerate() {
                     self.dim(*h, &format!("{entry}.half_extents_m[{k}]"))?;
                 }
-                Shape::Cuboid {
-                    half_extents: DVec3::from_array(*half_extents_m),
-                }
+                Shape::Cuboid { half_extents: DVec3::from_array(*half_extents_m) }
             }
             ShapeDef::Ellipsoid { radii_m } => {
                 for (k, h) in radii_m.iter().enumerate() {
                     self.dim(*h, &format!("{entry}.radii_m[{k}]"))?;
                 }
-                Shape::Ellipsoid {
-                    radii: DVec3::from_array(*radii_m),
-                }
+                Shape::Ellipsoid { radii: DVec3::from_array(*radii_m) }
             }
             ShapeDef::Convex { points } => {
                 if let Some(k) = points.iter().position(|p| !finite3(*p)) {
@@ -179,35 +153,23 @@ impl Builder {
                 }
                 let pts: Vec<DVec3> = points.iter().map(|p| DVec3::from_array(*p)).collect();
                 Shape::convex_hull(&pts).ok_or_else(|| {
-                    self.err(
-                        format!("{entry}.points"),
-                        "needs at least 4 points that are not coplanar",
-                    )
+                    self.err(format!("{entry}.points"), "needs at least 4 points that are not coplanar")
                 })?
             }
-            ShapeDef::Mesh {
-                vertices,
-                triangles,
-            } => {
+            ShapeDef::Mesh { vertices, triangles } => {
                 if !is_static {
                     return Err(self.err(entry, "a mesh can only belong to a static class"));
                 }
                 if let Some(k) = vertices.iter().position(|p| !finite3(*p)) {
                     return Err(self.err(format!("{entry}.vertices[{k}]"), "not a finite point"));
                 }
-                if let Some(k) = triangles
-                    .iter()
-                    .position(|t| t.iter().any(|&i| i as usize >= vertices.len()))
-                {
+                if let Some(k) = triangles.iter().position(|t| t.iter().any(|&i| i as usize >= vertices.len())) {
                     return Err(self.err(
                         format!("{entry}.triangles[{k}]"),
                         format!("names a vertex past the {} given", vertices.len()),
                     ));
                 }
-                let v: Vec<_> = vertices
-                    .iter()
-                    .map(|p| DVec3::from_array(*p).as_vec3())
-                    .collect();
+                let v: Vec<_> = vertices.iter().map(|p| DVec3::from_array(*p).as_vec3()).collect();
                 let mesh = rapier3d::parry::shape::TriMesh::new(v, triangles.clone())
                     .map_err(|e| self.err(entry, format!("invalid mesh: {e:?}")))?;
                 Shape::TriMesh(Arc::new(mesh))
@@ -217,30 +179,20 @@ impl Builder {
 
     fn build(&self, def: &SceneFile) -> Result<Scene, SceneError> {
         let w = &def.world;
-        let name =
-            WorldId::new(w.name.clone()).map_err(|e| self.err("world.name", e.to_string()))?;
+        let name = WorldId::new(w.name.clone()).map_err(|e| self.err("world.name", e.to_string()))?;
         if !(1..=1000).contains(&w.tick_hz) {
-            return Err(self.err(
-                "world.tick_hz",
-                format!("{} must be in 1..=1000", w.tick_hz),
-            ));
+            return Err(self.err("world.tick_hz", format!("{} must be in 1..=1000", w.tick_hz)));
         }
         if !finite3(w.gravity) {
             return Err(self.err("world.gravity", "must be finite"));
         }
         if !(w.contact_slop_m.is_finite() && w.contact_slop_m > 0.0 && w.contact_slop_m < 1.0) {
-            return Err(self.err(
-                "world.contact_slop_m",
-                format!("{} must be in (0, 1) m", w.contact_slop_m),
-            ));
+            return Err(self.err("world.contact_slop_m", format!("{} must be in (0, 1) m", w.contact_slop_m)));
         }
         let mut bisect = BisectConfig::default();
         if let Some(tol) = w.toi_tolerance {
             if !(tol.is_finite() && tol > 0.0 && tol <= 0.5) {
-                return Err(self.err(
-                    "world.toi_tolerance",
-                    format!("{tol} must be in (0, 0.5] (fraction of a tick)"),
-                ));
+                return Err(self.err("world.toi_tolerance", format!("{tol} must be in (0, 0.5] (fraction of a tick)")));
             }
             bisect.tolerance = tol;
         }
@@ -248,10 +200,7 @@ impl Builder {
             return Err(self.err("world.bounce_threshold_mps", "must be finite and >= 0"));
         }
         if !(0.0..=1.0).contains(&w.restitution) {
-            return Err(self.err(
-                "world.restitution",
-                format!("{} must be in [0, 1]", w.restitution),
-            ));
+            return Err(self.err("world.restitution", format!("{} must be in [0, 1]", w.restitution)));
         }
         if def.classes.is_empty() {
             return Err(self.err("class", "a scene needs at least one [[class]]"));
@@ -261,22 +210,13 @@ impl Builder {
         for (k, c) in def.classes.iter().enumerate() {
             let entry = format!("class[{k}]");
             if def.classes[..k].iter().any(|o| o.name == c.name) {
-                return Err(self.err(
-                    format!("{entry}.name"),
-                    format!("class {:?} is defined twice", c.name),
-                ));
+                return Err(self.err(format!("{entry}.name"), format!("class {:?} is defined twice", c.name)));
             }
             if !(c.max_speed_mps.is_finite() && c.max_speed_mps > 0.0) {
-                return Err(self.err(
-                    format!("{entry}.max_speed_mps"),
-                    "must be positive and finite",
-                ));
+                return Err(self.err(format!("{entry}.max_speed_mps"), "must be positive and finite"));
             }
             if !(c.density_kg_m3.is_finite() && c.density_kg_m3 > 0.0) {
-                return Err(self.err(
-                    format!("{entry}.density_kg_m3"),
-                    "must be positive and finite",
-                ));
+                return Err(self.err(format!("{entry}.density_kg_m3"), "must be positive and finite"));
             }
             props.push(ClassProps {
                 name: c.name.clone(),
@@ -287,8 +227,8 @@ impl Builder {
             });
             immovable.push(c.immovable || c.is_static);
         }
-        let default = rule_of(w.default_response, w.restitution, None, None)
-            .expect("default response has no destroy side");
+        let default =
+            rule_of(w.default_response, w.restitution, None, None).expect("default response has no destroy side");
         let mut classes = Classes::new(props, default);
         for (k, r) in def.responses.iter().enumerate() {
             let entry = format!("response[{k}]");
@@ -296,10 +236,7 @@ impl Builder {
             let b = self.class(&classes, &r.between[1], &format!("{entry}.between[1]"))?;
             let restitution = r.restitution.unwrap_or(w.restitution);
             if !(0.0..=1.0).contains(&restitution) {
-                return Err(self.err(
-                    format!("{entry}.restitution"),
-                    format!("{restitution} must be in [0, 1]"),
-                ));
+                return Err(self.err(format!("{entry}.restitution"), format!("{restitution} must be in [0, 1]")));
             }
             let rule = rule_of(r.kind, restitution, r.destroy, r.restitution).ok_or_else(|| {
                 self.err(
@@ -333,16 +270,13 @@ impl Builder {
                 let rows = match (&t.heights, &t.hills) {
                     (Some(h), None) => h.clone(),
                     (None, Some(h)) => hills(h),
-                    _ => {
-                        return Err(self.err("terrain", "give exactly one of `heights` or `hills`"))
-                    }
+                    _ => return Err(self.err("terrain", "give exactly one of `heights` or `hills`")),
                 };
                 if !finite3(t.origin) {
                     return Err(self.err("terrain.origin", "must be finite"));
                 }
-                let field =
-                    HeightField::new(DVec3::from_array(t.origin), t.cell_m[0], t.cell_m[1], &rows)
-                        .map_err(|e| self.err("terrain", e.to_string()))?;
+                let field = HeightField::new(DVec3::from_array(t.origin), t.cell_m[0], t.cell_m[1], &rows)
+                    .map_err(|e| self.err("terrain", e.to_string()))?;
                 let id = EntityId(next_id);
                 next_id += 1;
                 Some(Terrain { id, class, field })
@@ -354,47 +288,25 @@ impl Builder {
             let class = self.class(&classes, &b.class, &format!("{entry}.class"))?;
             let is_static = classes.props[class.0 as usize].is_static;
             let shape = self.shape(&b.shape, &format!("{entry}.shape"), is_static)?;
-            for (field, v) in [
-                ("position", b.position),
-                ("velocity", b.velocity),
-                ("rotation_deg", b.rotation_deg),
-            ] {
+            for (field, v) in [("position", b.position), ("velocity", b.velocity), ("rotation_deg", b.rotation_deg)] {
                 if !finite3(v) {
                     return Err(self.err(format!("{entry}.{field}"), "must be finite"));
                 }
             }
             if let Some(m) = b.mass_kg {
                 if !(m.is_finite() && m > 0.0) {
-                    return Err(self.err(
-                        format!("{entry}.mass_kg"),
-                        format!("{m} must be positive and finite"),
-                    ));
+                    return Err(self.err(format!("{entry}.mass_kg"), format!("{m} must be positive and finite")));
                 }
             }
             let r = b.rotation_deg.map(f64::to_radians);
-            let rot = DQuat::from_rotation_z(r[2])
-                * DQuat::from_rotation_y(r[1])
-                * DQuat::from_rotation_x(r[0]);
+            let rot = DQuat::from_rotation_z(r[2]) * DQuat::from_rotation_y(r[1]) * DQuat::from_rotation_x(r[0]);
             let (pos, vel) = (DVec3::from_array(b.position), DVec3::from_array(b.velocity));
-            items.push(Item {
-                entry,
-                class,
-                shape,
-                pos,
-                vel,
-                rot,
-                mass: b.mass_kg,
-                owner: b.owner.map(ClientId),
-            });
+            items.push(Item { entry, class, shape, pos, vel, rot, mass: b.mass_kg, owner: b.owner.map(ClientId) });
         }
         for (k, a) in def.arrays.iter().enumerate() {
             let entry = format!("array[{k}]");
             let class = self.class(&classes, &a.class, &format!("{entry}.class"))?;
-            let shape = self.shape(
-                &a.shape,
-                &format!("{entry}.shape"),
-                classes.props[class.0 as usize].is_static,
-            )?;
+            let shape = self.shape(&a.shape, &format!("{entry}.shape"), classes.props[class.0 as usize].is_static)?;
             if !finite3(a.origin) || !finite3(a.spacing_m) || !finite3(a.velocity) {
                 return Err(self.err(entry, "origin, spacing_m and velocity must be finite"));
             }
@@ -402,8 +314,7 @@ impl Builder {
                 for y in 0..a.count[1] {
                     for x in 0..a.count[0] {
                         let p = DVec3::from_array(a.origin)
-                            + DVec3::new(x as f64, y as f64, z as f64)
-                                * DVec3::from_array(a.spacing_m);
+                            + DVec3::new(x as f64, y as f64, z as f64) * DVec3::from_array(a.spacing_m);
                         let vel = DVec3::from_array(a.velocity);
                         items.push(Item {
                             entry: entry.clone(),
@@ -422,11 +333,7 @@ impl Builder {
         for (k, s) in def.scatters.iter().enumerate() {
             let entry = format!("scatter[{k}]");
             let class = self.class(&classes, &s.class, &format!("{entry}.class"))?;
-            let shape = self.shape(
-                &s.shape,
-                &format!("{entry}.shape"),
-                classes.props[class.0 as usize].is_static,
-            )?;
+            let shape = self.shape(&s.shape, &format!("{entry}.shape"), classes.props[class.0 as usize].is_static)?;
             let placed = random::scatter(s, &shape).map_err(|d| self.err(&entry, d))?;
             for (p, v) in placed {
                 items.push(Item {
@@ -443,35 +350,13 @@ impl Builder {
         }
         let total = items.len() + usize::from(terrain.is_some());
         if total > w.max_bodies as usize {
-            return Err(self.err(
-                "world.max_bodies",
-                format!(
-                    "the scene has {total} bodies, over max_bodies = {}",
-                    w.max_bodies
-                ),
-            ));
+            return Err(self
+                .err("world.max_bodies", format!("the scene has {total} bodies, over max_bodies = {}", w.max_bodies)));
         }
 
-        let mut statics = (
-            Vec::new(),
-            Vec::new(),
-            Vec::new(),
-            Vec::new(),
-            Vec::new(),
-            Vec::new(),
-        );
+        let mut statics = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
         let mut bodies = Bodies::default();
-        for Item {
-            entry,
-            class,
-            shape,
-            pos,
-            vel,
-            rot,
-            mass,
-            owner,
-        } in items
-        {
+        for Item { entry, class, shape, pos, vel, rot, mass, owner } in items {
             let id = EntityId(next_id);
             next_id += 1;
             if classes.props[class.0 as usize].is_static {
@@ -488,22 +373,9 @@ impl Builder {
                 let inv_mass = if immovable[class.0 as usize] {
                     0.0
                 } else {
-                    1.0 / mass.unwrap_or_else(|| {
-                        classes.props[class.0 as usize].density_kg_m3 * shape.volume()
-                    })
+                    1.0 / mass.unwrap_or_else(|| classes.props[class.0 as usize].density_kg_m3 * shape.volume())
                 };
-                bodies.push(
-                    id,
-                    NewBody {
-                        class,
-                        shape,
-                        pos,
-                        vel,
-                        rot,
-                        inv_mass,
-                        owner,
-                    },
-                );
+                bodies.push(id, NewBody { class, shape, pos, vel, rot, inv_mass, owner });
             }
         }
         let index = StaticIndex::new(&statics.5);
@@ -547,8 +419,7 @@ impl Builder {
         };
 
         let dt = 1.0 / f64::from(w.tick_hz);
-        let window_ticks =
-            ((u64::from(w.rollback_ms) * u64::from(w.tick_hz)).div_ceil(1000)) as u32;
+        let window_ticks = ((u64::from(w.rollback_ms) * u64::from(w.tick_hz)).div_ceil(1000)) as u32;
         let config = SimConfig {
             tick_hz: w.tick_hz,
             dt,
@@ -571,11 +442,7 @@ impl Builder {
             statics: Arc::new(static_world),
             config: Arc::new(config),
         };
-        Ok(Scene {
-            name,
-            world,
-            avatar,
-        })
+        Ok(Scene { name, world, avatar })
     }
 }
 
@@ -592,21 +459,9 @@ fn rule_of(
         ResponseKind::Slide => Rule::Slide,
         ResponseKind::Stop => Rule::Stop,
         ResponseKind::Destroy => match destroy? {
-            DestroyWhich::First => Rule::Destroy {
-                first: true,
-                second: false,
-                restitution: destroy_bounce,
-            },
-            DestroyWhich::Second => Rule::Destroy {
-                first: false,
-                second: true,
-                restitution: destroy_bounce,
-            },
-            DestroyWhich::Both => Rule::Destroy {
-                first: true,
-                second: true,
-                restitution: None,
-            },
+            DestroyWhich::First => Rule::Destroy { first: true, second: false, restitution: destroy_bounce },
+            DestroyWhich::Second => Rule::Destroy { first: false, second: true, restitution: destroy_bounce },
+            DestroyWhich::Both => Rule::Destroy { first: true, second: true, restitution: None },
         },
     })
 }
@@ -618,9 +473,7 @@ fn hills(h: &HillsDef) -> Vec<Vec<f64>> {
             (0..h.nx.max(2))
                 .map(|x| {
                     let (x, z) = (f64::from(x), f64::from(z));
-                    h.amplitude_m
-                        * (tau * x / h.wavelength_m).sin()
-                        * (tau * z / h.wavelength_m).cos()
+                    h.amplitude_m * (tau * x / h.wavelength_m).sin() * (tau * z / h.wavelength_m).cos()
                 })
                 .collect()
         })
@@ -648,19 +501,13 @@ mod tests {
         let e = err("[world]\nname = \"a\"\n[[class]]\nname = \"ball\"\n[[body]]\nclass = \"bal\"\nshape = { type = \"sphere\", radius_m = 1.0 }\nposition = [0,0,0]\n");
         assert_eq!(e.file, "test.toml");
         assert_eq!(e.entry, "body[0].class");
-        assert!(
-            e.detail.contains("unknown class \"bal\"") && e.detail.contains("ball"),
-            "{e}"
-        );
+        assert!(e.detail.contains("unknown class \"bal\"") && e.detail.contains("ball"), "{e}");
 
         let e = err("[world]\nname = \"a\"\n[[class]]\nname = \"ball\"\n[[body]]\nclass = \"ball\"\nshape = { type = \"sphere\", radius_m = -1.0 }\nposition = [0,0,0]\n");
         assert_eq!(e.entry, "body[0].shape.radius_m");
 
         let e = err("[world]\nname = \"a\"\nspeed = 3\n");
-        assert!(
-            e.entry.starts_with("line 3") && e.detail.contains("speed"),
-            "{e}"
-        );
+        assert!(e.entry.starts_with("line 3") && e.detail.contains("speed"), "{e}");
 
         let e = err("[world]\nname = \"Bad/Name\"\n[[class]]\nname = \"x\"\n");
         assert_eq!(e.entry, "world.name");
@@ -674,12 +521,7 @@ mod tests {
 
         let e = err("[world]\nname = \"a\"\nmax_bodies = 10\n[[class]]\nname = \"ball\"\n[[scatter]]\nclass = \"ball\"\nshape = { type = \"sphere\", radius_m = 0.5 }\ncount = 11\nmin = [0,0,0]\nmax = [100,100,100]\n");
         assert_eq!(e.entry, "world.max_bodies");
-        assert!(
-            Scene::load(Path::new("/nonexistent/scene.toml"))
-                .unwrap_err()
-                .entry
-                == "file"
-        );
+        assert!(Scene::load(Path::new("/nonexistent/scene.toml")).unwrap_err().entry == "file");
     }
 
     #[test]

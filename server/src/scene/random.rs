@@ -45,21 +45,18 @@ pub fn scatter(s: &ScatterDef, shape: &Shape) -> Result<Vec<(DVec3, DVec3)>, Str
     }
     let [lo, hi] = s.speed_mps;
     if !(lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo <= hi) {
-        return Err(format!(
-            "speed_mps [{lo}, {hi}] must be finite with 0 <= lo <= hi"
-        ));
+        return Err(format!("speed_mps [{lo}, {hi}] must be finite with 0 <= lo <= hi"));
     }
     let r = shape.bounding_radius();
     let cell = 2.0 * r * 1.05;
     let size = max - min;
     let dims = [0, 1, 2].map(|k| ((size[k] / cell).floor() as u64).max(1));
-    let cells = dims
-        .iter()
-        .try_fold(1u64, |acc, d| acc.checked_mul(*d))
-        .unwrap_or(u64::MAX);
+    let cells = dims.iter().try_fold(1u64, |acc, d| acc.checked_mul(*d)).unwrap_or(u64::MAX);
     let count = u64::from(s.count);
     if count > cells {
-        return Err(format!("the region fits only {cells} bodies of bounding radius {r} m without overlap, {count} asked"));
+        return Err(format!(
+            "the region fits only {cells} bodies of bounding radius {r} m without overlap, {count} asked"
+        ));
     }
     let mut rng = SplitMix64::new(s.seed);
     // Choose distinct cells: a partial shuffle when the lattice is small, rejection otherwise.
@@ -85,11 +82,7 @@ pub fn scatter(s: &ScatterDef, shape: &Shape) -> Result<Vec<(DVec3, DVec3)>, Str
     let slack = (cell - 2.0 * r).max(0.0);
     let mut out = Vec::with_capacity(chosen.len());
     for c in chosen {
-        let idx = [
-            c % dims[0],
-            (c / dims[0]) % dims[1],
-            c / (dims[0] * dims[1]),
-        ];
+        let idx = [c % dims[0], (c / dims[0]) % dims[1], c / (dims[0] * dims[1])];
         let mut p = DVec3::ZERO;
         for k in 0..3 {
             // Thin axes (one cell) centre the body in the region.

@@ -11,8 +11,7 @@ use crate::sim::step::TickOutput;
 use crate::sim::world::{NewBody, Rule, World};
 use glam::{DQuat, DVec3};
 use impact_protocol::{
-    Action, ClientId, CollisionEvent, EntityId, EventStatus, Phase, RayResult, RejectReason,
-    Response, ShapeSpec,
+    Action, ClientId, CollisionEvent, EntityId, EventStatus, Phase, RayResult, RejectReason, Response, ShapeSpec,
 };
 
 /// The inputs one client sent for one tick.
@@ -41,14 +40,10 @@ pub struct Skipped {
 
 fn owned(w: &World, client: ClientId, e: EntityId) -> Result<usize, (RejectReason, String)> {
     match w.bodies.slot(e) {
-        None => Err((
-            RejectReason::UnknownEntity,
-            format!("entity {e} does not exist"),
-        )),
-        Some(s) if w.bodies.owner[s] != Some(client) => Err((
-            RejectReason::NotOwner,
-            format!("entity {e} is not owned by client {client}"),
-        )),
+        None => Err((RejectReason::UnknownEntity, format!("entity {e} does not exist"))),
+        Some(s) if w.bodies.owner[s] != Some(client) => {
+            Err((RejectReason::NotOwner, format!("entity {e} is not owned by client {client}")))
+        }
         Some(s) => Ok(s),
     }
 }
@@ -62,32 +57,20 @@ fn speed_ok(
     let max = w.config.classes.props[slot_class.0 as usize].max_speed_mps;
     let s = DVec3::from_array(v).length();
     if s > max {
-        return Err((
-            RejectReason::OutOfRange,
-            format!("{field}: speed {s:.3} m/s exceeds the class limit {max} m/s"),
-        ));
+        return Err((RejectReason::OutOfRange, format!("{field}: speed {s:.3} m/s exceeds the class limit {max} m/s")));
     }
     Ok(())
 }
 
 /// Whether `client` may apply `actions` to the world as it is now. The runtime calls this on
 /// arrival; [`apply`] calls it again at the input's tick.
-pub fn check(
-    w: &World,
-    client: ClientId,
-    actions: &[Action],
-) -> Result<(), (RejectReason, String)> {
+pub fn check(w: &World, client: ClientId, actions: &[Action]) -> Result<(), (RejectReason, String)> {
     let mut spawns = 0usize;
     for (k, a) in actions.iter().enumerate() {
         match a {
             Action::SetVelocity { entity, velocity } => {
                 let s = owned(w, client, *entity)?;
-                speed_ok(
-                    w,
-                    w.bodies.class[s],
-                    *velocity,
-                    &format!("actions[{k}].velocity"),
-                )?;
+                speed_ok(w, w.bodies.class[s], *velocity, &format!("actions[{k}].velocity"))?;
             }
             Action::ApplyImpulse { entity, .. } | Action::Despawn { entity } => {
                 owned(w, client, *entity)?;
@@ -97,10 +80,7 @@ pub fn check(
             }
             Action::SpawnProjectile { velocity, .. } => {
                 let class = w.config.projectile_class.ok_or_else(|| {
-                    (
-                        RejectReason::OutOfRange,
-                        "this scene has no projectile class: spawning is disabled".to_string(),
-                    )
+                    (RejectReason::OutOfRange, "this scene has no projectile class: spawning is disabled".to_string())
                 })?;
                 speed_ok(w, class, *velocity, &format!("actions[{k}].velocity"))?;
                 spawns += 1;
@@ -129,16 +109,10 @@ fn clamp_speed(v: DVec3, max: f64) -> DVec3 {
 pub fn shape_of(spec: &ShapeSpec) -> Shape {
     match *spec {
         ShapeSpec::Sphere { radius_m } => Shape::Sphere { radius: radius_m },
-        ShapeSpec::Capsule {
-            half_height_m,
-            radius_m,
-        } => Shape::Capsule {
-            half_height: half_height_m,
-            radius: radius_m,
-        },
-        ShapeSpec::Cuboid { half_extents_m } => Shape::Cuboid {
-            half_extents: DVec3::from_array(half_extents_m),
-        },
+        ShapeSpec::Capsule { half_height_m, radius_m } => {
+            Shape::Capsule { half_height: half_height_m, radius: radius_m }
+        }
+        ShapeSpec::Cuboid { half_extents_m } => Shape::Cuboid { half_extents: DVec3::from_array(half_extents_m) },
     }
 }
 
@@ -153,12 +127,7 @@ pub fn apply(w: &mut World, inputs: &[TickInput], out: &mut TickOutput) {
     for k in order {
         let input = &inputs[k];
         if let Err((reason, detail)) = check(w, input.client, &input.actions) {
-            out.skipped.push(Skipped {
-                client: input.client,
-                seq: input.seq,
-                reason,
-                detail,
-            });
+            out.skipped.push(Skipped { client: input.client, seq: input.seq, reason, detail });
             continue;
         }
         for a in &input.actions {
@@ -170,13 +139,7 @@ pub fn apply(w: &mut World, inputs: &[TickInput], out: &mut TickOutput) {
     }
 }
 
-fn apply_action(
-    w: &mut World,
-    input: &TickInput,
-    a: &Action,
-    out: &mut TickOutput,
-    removed: &mut Vec<EntityId>,
-) {
+fn apply_action(w: &mut World, input: &TickInput, a: &Action, out: &mut TickOutput, removed: &mut Vec<EntityId>) {
     let classes = &w.config.classes;
     match a {
         Action::SetVelocity { entity, velocity } => {
@@ -192,11 +155,7 @@ fn apply_action(
                 w.bodies.vel[s] = clamp_speed(v, max);
             }
         }
-        Action::SpawnProjectile {
-            shape,
-            position,
-            velocity,
-        } => {
+        Action::SpawnProjectile { shape, position, velocity } => {
             let Some(class) = w.config.projectile_class else {
                 return;
             };
@@ -215,20 +174,9 @@ fn apply_action(
             };
             w.spawn(body);
         }
-        Action::FireRay {
-            shooter,
-            origin,
-            direction,
-            max_distance_m,
-        } => {
+        Action::FireRay { shooter, origin, direction, max_distance_m } => {
             let dir = DVec3::from_array(*direction).normalize();
-            let hit = ray::cast(
-                w,
-                DVec3::from_array(*origin),
-                dir,
-                *max_distance_m,
-                Some(*shooter),
-            );
+            let hit = ray::cast(w, DVec3::from_array(*origin), dir, *max_distance_m, Some(*shooter));
             if let Some(h) = &hit {
                 let (Some(ca), Some(cb)) = (w.class_of(*shooter), w.class_of(h.entity)) else {
                     return;
@@ -257,13 +205,7 @@ fn apply_action(
                     });
                 }
             }
-            out.rays.push(RayResult {
-                client: input.client,
-                seq: input.seq,
-                tick: w.tick,
-                shooter: *shooter,
-                hit,
-            });
+            out.rays.push(RayResult { client: input.client, seq: input.seq, tick: w.tick, shooter: *shooter, hit });
         }
         Action::Despawn { entity } => removed.push(*entity),
     }

@@ -50,35 +50,15 @@ impl Plan {
         }
         // Fast movers: a class whose speed limit covers more than the smallest dynamic extent
         // in one tick, or a body already that fast.
-        let min_extent = b
-            .shape
-            .iter()
-            .map(|s| s.min_extent())
-            .fold(f64::INFINITY, f64::min);
-        let min_static = w
-            .statics
-            .shape
-            .iter()
-            .map(|s| s.min_extent())
-            .fold(f64::INFINITY, f64::min);
+        let min_extent = b.shape.iter().map(|s| s.min_extent()).fold(f64::INFINITY, f64::min);
+        let min_static = w.statics.shape.iter().map(|s| s.min_extent()).fold(f64::INFINITY, f64::min);
         let step_m = 0.5 * (min_extent + min_static.min(min_extent));
-        let max_speed = cfg
-            .classes
-            .props
-            .iter()
-            .filter(|p| !p.is_static)
-            .map(|p| p.max_speed_mps)
-            .fold(0.0, f64::max);
+        let max_speed = cfg.classes.props.iter().filter(|p| !p.is_static).map(|p| p.max_speed_mps).fold(0.0, f64::max);
         let fastest_now = b.vel.iter().map(|v| v.length()).fold(0.0, f64::max);
         let ccd_sampling = max_speed.max(fastest_now) * cfg.dt > step_m;
         // Grid for bodies of similar size; sweep and prune when sizes vary a lot (the grid's cell
         // is the largest box, which would put many small bodies in one cell).
-        let (rmin, rmax) = b
-            .radius
-            .iter()
-            .fold((f64::INFINITY, 0.0f64), |(lo, hi), &r| {
-                (lo.min(r), hi.max(r))
-            });
+        let (rmin, rmax) = b.radius.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &r| (lo.min(r), hi.max(r)));
         let broadphase = if b.len() <= BRUTE_FORCE_MAX {
             BroadphaseKind::BruteForce
         } else if rmax > 8.0 * rmin {
@@ -102,12 +82,7 @@ impl Plan {
     /// The general path on the same world: no analytic sphere kernels, GJK for every pair,
     /// sampling always on. What a plan-less engine would run; benchmarks compare against it.
     pub fn general(w: &World) -> Plan {
-        Plan {
-            analytic_spheres: false,
-            force_general: true,
-            ccd_sampling: true,
-            ..Plan::for_world(w)
-        }
+        Plan { analytic_spheres: false, force_general: true, ccd_sampling: true, ..Plan::for_world(w) }
     }
 }
 
@@ -117,41 +92,18 @@ impl fmt::Display for Plan {
         writeln!(f, "plan:")?;
         writeln!(f, "  broadphase      {}", self.broadphase.name())?;
         let kernels: Vec<String> = self.kernels.iter().map(|k| format!("{k:?}")).collect();
-        writeln!(
-            f,
-            "  kernels         {}",
-            if kernels.is_empty() {
-                "none".into()
-            } else {
-                kernels.join(", ")
-            }
-        )?;
-        writeln!(
-            f,
-            "  sphere toi      {}",
-            if self.analytic_spheres {
-                "analytic swept sphere"
-            } else {
-                "bisection"
-            }
-        )?;
+        writeln!(f, "  kernels         {}", if kernels.is_empty() { "none".into() } else { kernels.join(", ") })?;
+        writeln!(f, "  sphere toi      {}", if self.analytic_spheres { "analytic swept sphere" } else { "bisection" })?;
         writeln!(
             f,
             "  general path    {}",
-            if self.force_general {
-                "forced (GJK for every pair)"
-            } else {
-                "only where no analytic kernel"
-            }
+            if self.force_general { "forced (GJK for every pair)" } else { "only where no analytic kernel" }
         )?;
         writeln!(f, "  static pass     {}", on(self.statics))?;
         writeln!(f, "  terrain pass    {}", on(self.terrain))?;
         writeln!(f, "  ccd sampling    {}", on(self.ccd_sampling))?;
         writeln!(f, "  gravity         {}", on(self.gravity))?;
         writeln!(f, "  rollback        {}", on(self.rollback))?;
-        write!(
-            f,
-            "  always          static-static pairs never tested; resting pairs not re-tested"
-        )
+        write!(f, "  always          static-static pairs never tested; resting pairs not re-tested")
     }
 }

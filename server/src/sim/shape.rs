@@ -79,18 +79,12 @@ pub struct Aabb {
 
 impl Aabb {
     /// The empty box (contains nothing; `union` with it is the identity).
-    pub const EMPTY: Aabb = Aabb {
-        min: DVec3::splat(f64::INFINITY),
-        max: DVec3::splat(f64::NEG_INFINITY),
-    };
+    pub const EMPTY: Aabb = Aabb { min: DVec3::splat(f64::INFINITY), max: DVec3::splat(f64::NEG_INFINITY) };
 
     /// The smallest box containing both.
     #[inline]
     pub fn union(&self, other: &Aabb) -> Aabb {
-        Aabb {
-            min: self.min.min(other.min),
-            max: self.max.max(other.max),
-        }
+        Aabb { min: self.min.min(other.min), max: self.max.max(other.max) }
     }
 
     /// Closed-interval overlap on all three axes.
@@ -107,19 +101,13 @@ impl Aabb {
     /// Grown by `margin` on every side.
     #[inline]
     pub fn inflated(&self, margin: f64) -> Aabb {
-        Aabb {
-            min: self.min - DVec3::splat(margin),
-            max: self.max + DVec3::splat(margin),
-        }
+        Aabb { min: self.min - DVec3::splat(margin), max: self.max + DVec3::splat(margin) }
     }
 
     /// Moved by `d`.
     #[inline]
     pub fn translated(&self, d: DVec3) -> Aabb {
-        Aabb {
-            min: self.min + d,
-            max: self.max + d,
-        }
+        Aabb { min: self.min + d, max: self.max + d }
     }
 
     /// Size along each axis.
@@ -152,49 +140,34 @@ impl Shape {
     pub fn convex_hull(points: &[DVec3]) -> Option<Shape> {
         let pts: Vec<parry::math::Vector> = points.iter().map(|p| p.as_vec3()).collect();
         let parry = parry::shape::ConvexPolyhedron::from_convex_hull(&pts)?;
-        Some(Shape::Convex(Arc::new(ConvexHull {
-            points: points.to_vec(),
-            parry,
-        })))
+        Some(Shape::Convex(Arc::new(ConvexHull { points: points.to_vec(), parry })))
     }
 
     /// The box bounding the shape in its local frame.
     pub fn local_aabb(&self) -> Aabb {
         let half = match self {
             Shape::Sphere { radius } => DVec3::splat(*radius),
-            Shape::Capsule {
-                half_height,
-                radius,
-            } => DVec3::new(*radius, half_height + radius, *radius),
+            Shape::Capsule { half_height, radius } => DVec3::new(*radius, half_height + radius, *radius),
             Shape::Cuboid { half_extents } => *half_extents,
             Shape::Ellipsoid { radii } => *radii,
             Shape::Convex(hull) => {
-                return hull.points.iter().fold(Aabb::EMPTY, |acc, p| Aabb {
-                    min: acc.min.min(*p),
-                    max: acc.max.max(*p),
-                });
+                return hull
+                    .points
+                    .iter()
+                    .fold(Aabb::EMPTY, |acc, p| Aabb { min: acc.min.min(*p), max: acc.max.max(*p) });
             }
             Shape::TriMesh(mesh) => {
                 let a = mesh.local_aabb();
-                return Aabb {
-                    min: a.mins.as_dvec3(),
-                    max: a.maxs.as_dvec3(),
-                };
+                return Aabb { min: a.mins.as_dvec3(), max: a.maxs.as_dvec3() };
             }
         };
-        Aabb {
-            min: -half,
-            max: half,
-        }
+        Aabb { min: -half, max: half }
     }
 
     /// The world-frame box bounding the shape at `pos` with orientation `rot`.
     pub fn world_aabb(&self, pos: DVec3, rot: DQuat) -> Aabb {
         if let Shape::Sphere { radius } = self {
-            return Aabb {
-                min: pos - DVec3::splat(*radius),
-                max: pos + DVec3::splat(*radius),
-            };
+            return Aabb { min: pos - DVec3::splat(*radius), max: pos + DVec3::splat(*radius) };
         }
         let local = self.local_aabb();
         let centre = (local.min + local.max) * 0.5;
@@ -204,10 +177,7 @@ impl Shape {
         let abs = glam::DMat3::from_cols(m.x_axis.abs(), m.y_axis.abs(), m.z_axis.abs());
         let world_half = abs * half;
         let world_centre = pos + rot * centre;
-        Aabb {
-            min: world_centre - world_half,
-            max: world_centre + world_half,
-        }
+        Aabb { min: world_centre - world_half, max: world_centre + world_half }
     }
 
     /// The smallest full dimension (diameter, thickness): the step a swept pair may take
@@ -234,10 +204,7 @@ impl Shape {
     pub fn bounding_radius(&self) -> f64 {
         match self {
             Shape::Sphere { radius } => *radius,
-            Shape::Capsule {
-                half_height,
-                radius,
-            } => half_height + radius,
+            Shape::Capsule { half_height, radius } => half_height + radius,
             Shape::Cuboid { half_extents } => half_extents.length(),
             Shape::Ellipsoid { radii } => radii.max_element(),
             Shape::Convex(hull) => hull.points.iter().map(|p| p.length()).fold(0.0, f64::max),
@@ -253,13 +220,8 @@ impl Shape {
         use std::f64::consts::PI;
         match self {
             Shape::Sphere { radius } => 4.0 / 3.0 * PI * radius.powi(3),
-            Shape::Capsule {
-                half_height,
-                radius,
-            } => PI * radius * radius * (2.0 * half_height + 4.0 / 3.0 * radius),
-            Shape::Cuboid { half_extents } => {
-                8.0 * half_extents.x * half_extents.y * half_extents.z
-            }
+            Shape::Capsule { half_height, radius } => PI * radius * radius * (2.0 * half_height + 4.0 / 3.0 * radius),
+            Shape::Cuboid { half_extents } => 8.0 * half_extents.x * half_extents.y * half_extents.z,
             Shape::Ellipsoid { radii } => 4.0 / 3.0 * PI * radii.x * radii.y * radii.z,
             Shape::Convex(_) | Shape::TriMesh(_) => {
                 let e = self.local_aabb().extents();
@@ -273,19 +235,8 @@ impl Shape {
     pub fn local_support(&self, dir: DVec3) -> DVec3 {
         match self {
             Shape::Sphere { radius } => dir.normalize_or(DVec3::Y) * *radius,
-            Shape::Capsule {
-                half_height,
-                radius,
-            } => {
-                let tip = DVec3::new(
-                    0.0,
-                    if dir.y >= 0.0 {
-                        *half_height
-                    } else {
-                        -half_height
-                    },
-                    0.0,
-                );
+            Shape::Capsule { half_height, radius } => {
+                let tip = DVec3::new(0.0, if dir.y >= 0.0 { *half_height } else { -half_height }, 0.0);
                 tip + dir.normalize_or(DVec3::Y) * *radius
             }
             Shape::Cuboid { half_extents } => DVec3::new(

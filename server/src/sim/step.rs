@@ -117,10 +117,7 @@ impl PartialOrd for Impact {
 impl Ord for Impact {
     /// Reversed so the max-heap pops the earliest impact; ties broken by the pair.
     fn cmp(&self, other: &Self) -> Ordering {
-        other
-            .t
-            .total_cmp(&self.t)
-            .then_with(|| (other.a, other.b).cmp(&(self.a, self.b)))
+        other.t.total_cmp(&self.t).then_with(|| (other.a, other.b).cmp(&(self.a, self.b)))
     }
 }
 
@@ -195,12 +192,7 @@ impl Stepper {
         &self.plan
     }
 
-    fn lap(
-        &self,
-        since: &mut Option<Instant>,
-        slot: fn(&mut StageStats) -> &mut Duration,
-        stats: &mut StageStats,
-    ) {
+    fn lap(&self, since: &mut Option<Instant>, slot: fn(&mut StageStats) -> &mut Duration, stats: &mut StageStats) {
         if let Some(start) = since {
             let now = Instant::now();
             *slot(stats) += now - *start;
@@ -317,14 +309,11 @@ impl Stepper {
                 }
                 continue;
             }
-            if imp.started_inside && imp.contact.depth <= cfg.contact_slop_m && separating(w, &imp)
-            {
+            if imp.started_inside && imp.contact.depth <= cfg.contact_slop_m && separating(w, &imp) {
                 // Touching within the slop and already moving apart: nothing to resolve.
                 continue;
             }
-            if !imp.started_inside
-                && closing_speed(w, &imp) * (1.0 - imp.t) * cfg.dt <= 0.5 * cfg.contact_slop_m
-            {
+            if !imp.started_inside && closing_speed(w, &imp) * (1.0 - imp.t) * cfg.dt <= 0.5 * cfg.contact_slop_m {
                 // A resting contact: even unresolved, the pair cannot sink deeper than half the
                 // slop by the end of the tick, and the next tick starts by pushing it apart.
                 // Resolving it would only set off a chain of micro-impacts through a pile.
@@ -341,16 +330,8 @@ impl Stepper {
             }
             let over = |this: &Stepper, k: usize| this.count[k] > MAX_RESOLUTIONS_PER_BODY;
             if over(self, i) || matches!(imp.b, Partner::Body(j) if over(self, j as usize)) {
-                for k in [
-                    Some(i),
-                    if let Partner::Body(j) = imp.b {
-                        Some(j as usize)
-                    } else {
-                        None
-                    },
-                ]
-                .into_iter()
-                .flatten()
+                for k in
+                    [Some(i), if let Partner::Body(j) = imp.b { Some(j as usize) } else { None }].into_iter().flatten()
                 {
                     if over(self, k) && self.t0[k] < 1.0 {
                         self.base[k] = self.pos_at(w, k, imp.t);
@@ -388,19 +369,13 @@ impl Stepper {
         if self.plan.statics {
             w.statics.index.query(&aabb, &mut self.static_buf);
             for &s in &self.static_buf {
-                if w.config
-                    .classes
-                    .rule(b.class[i as usize], w.statics.class[s as usize])
-                    != Rule::Ignore
-                {
+                if w.config.classes.rule(b.class[i as usize], w.statics.class[s as usize]) != Rule::Ignore {
                     self.candidates.push((i, Partner::Static(s)));
                 }
             }
         }
         if let Some(t) = &w.statics.terrain {
-            if t.field.aabb().overlaps(&aabb)
-                && w.config.classes.rule(b.class[i as usize], t.class) != Rule::Ignore
-            {
+            if t.field.aabb().overlaps(&aabb) && w.config.classes.rule(b.class[i as usize], t.class) != Rule::Ignore {
                 self.candidates.push((i, Partner::Terrain));
             }
         }
@@ -423,38 +398,16 @@ impl Stepper {
     }
 
     /// Contact between body `i` at `pa` and the partner at `pb` (`a` at the origin).
-    fn contact(
-        &self,
-        w: &World,
-        i: usize,
-        pa: DVec3,
-        p: Partner,
-        pb: DVec3,
-        margin: f64,
-    ) -> Option<Contact> {
+    fn contact(&self, w: &World, i: usize, pa: DVec3, p: Partner, pb: DVec3, margin: f64) -> Option<Contact> {
         let b = &w.bodies;
         let (sa, ra) = (&b.shape[i], b.rot[i]);
         match p {
-            Partner::Body(j) => convex_contact(
-                &self.plan,
-                sa,
-                ra,
-                &b.shape[j as usize],
-                b.rot[j as usize],
-                pb - pa,
-                margin,
-            ),
+            Partner::Body(j) => {
+                convex_contact(&self.plan, sa, ra, &b.shape[j as usize], b.rot[j as usize], pb - pa, margin)
+            }
             Partner::Static(s) => {
                 let s = s as usize;
-                convex_contact(
-                    &self.plan,
-                    sa,
-                    ra,
-                    &w.statics.shape[s],
-                    w.statics.rot[s],
-                    pb - pa,
-                    margin,
-                )
+                convex_contact(&self.plan, sa, ra, &w.statics.shape[s], w.statics.rot[s], pb - pa, margin)
             }
             Partner::Terrain => {
                 let t = w.statics.terrain.as_ref()?;
@@ -502,21 +455,13 @@ impl Stepper {
                 Partner::Static(s) => &w.statics.shape[s as usize],
                 Partner::Terrain => unreachable!(),
             };
-            if let (Shape::Sphere { radius: r1 }, Shape::Sphere { radius: r2 }) = (&b.shape[i], sb)
-            {
+            if let (Shape::Sphere { radius: r1 }, Shape::Sphere { radius: r2 }) = (&b.shape[i], sb) {
                 // DESIGN.md's A = P1 - Q1 and B = (P2 - P1) - (Q2 - Q1), with P = a and Q = b.
                 return match swept_sphere(-d0, -rel, r1 + r2) {
                     SweptSphere::Hit(s) => {
                         let d = d0 + rel * s;
                         let c = narrow::sphere_sphere::contact(*r1, *r2, d)?;
-                        Some(mk(
-                            from + span * s,
-                            Contact {
-                                depth: c.depth.max(0.0),
-                                ..c
-                            },
-                            false,
-                        ))
+                        Some(mk(from + span * s, Contact { depth: c.depth.max(0.0), ..c }, false))
                     }
                     _ => None,
                 };
@@ -529,16 +474,11 @@ impl Stepper {
             Partner::Static(s) => w.statics.shape[s as usize].min_extent(),
             Partner::Terrain => 0.0,
         };
-        let step_m = if self.plan.ccd_sampling {
-            0.5 * (b.shape[i].min_extent() + extent_b)
-        } else {
-            f64::INFINITY
-        };
+        let step_m = if self.plan.ccd_sampling { 0.5 * (b.shape[i].min_extent() + extent_b) } else { f64::INFINITY };
         let overlaps = |t: f64| {
             let qa = pa + va * ((t - from) * dt);
             let qb = pb + vb * ((t - from) * dt);
-            self.contact(w, i, qa, p, qb, 0.0)
-                .is_some_and(|c| c.depth > 0.0)
+            self.contact(w, i, qa, p, qb, 0.0).is_some_and(|c| c.depth > 0.0)
         };
         let bracket = first_contact(from, travel, step_m, &w.config.bisect, overlaps)?;
         *tests += bracket.tests;
@@ -548,15 +488,7 @@ impl Stepper {
         let qb = pb + vb * ((bracket.hi - from) * dt);
         let c = self.contact(w, i, qa, p, qb, 0.0)?;
         let shift = va * ((bracket.hi - bracket.lo) * dt);
-        Some(mk(
-            bracket.lo,
-            Contact {
-                point: c.point + shift,
-                depth: 0.0,
-                ..c
-            },
-            false,
-        ))
+        Some(mk(bracket.lo, Contact { point: c.point + shift, depth: 0.0, ..c }, false))
     }
 
     /// Applies the response for one impact. Returns the bodies whose paths changed.
@@ -565,18 +497,10 @@ impl Stepper {
         let i = imp.a as usize;
         let t = imp.t;
         let (class_b, id_b, inv_mb) = match imp.b {
-            Partner::Body(j) => (
-                w.bodies.class[j as usize],
-                w.bodies.id[j as usize],
-                w.bodies.inv_mass[j as usize],
-            ),
+            Partner::Body(j) => (w.bodies.class[j as usize], w.bodies.id[j as usize], w.bodies.inv_mass[j as usize]),
             Partner::Static(s) => (w.statics.class[s as usize], w.statics.id[s as usize], 0.0),
             Partner::Terrain => {
-                let t = w
-                    .statics
-                    .terrain
-                    .as_ref()
-                    .expect("terrain partner implies terrain");
+                let t = w.statics.terrain.as_ref().expect("terrain partner implies terrain");
                 (t.class, t.id, 0.0)
             }
         };
@@ -603,32 +527,24 @@ impl Stepper {
             Partner::Body(j) => Some(j as usize),
             _ => None,
         };
-        let mut set_path = |this: &mut Stepper,
-                            w: &mut World,
-                            body: usize,
-                            new_pos: DVec3,
-                            new_vel: DVec3,
-                            slot: usize| {
-            // A change too small to move the body by half the slop over the rest of the tick
-            // does not need its new path searched again.
-            let shift = (new_pos - this.pos_at(w, body, t)).length()
-                + (new_vel - w.bodies.vel[body]).length() * (1.0 - t) * w.config.dt;
-            this.base[body] = new_pos;
-            this.t0[body] = t;
-            w.bodies.vel[body] = new_vel;
-            this.version[body] += 1;
-            this.moving[body] = true;
-            if shift > 0.5 * w.config.contact_slop_m {
-                changed[slot] = Some(body as u32);
-            }
-        };
+        let mut set_path =
+            |this: &mut Stepper, w: &mut World, body: usize, new_pos: DVec3, new_vel: DVec3, slot: usize| {
+                // A change too small to move the body by half the slop over the rest of the tick
+                // does not need its new path searched again.
+                let shift = (new_pos - this.pos_at(w, body, t)).length()
+                    + (new_vel - w.bodies.vel[body]).length() * (1.0 - t) * w.config.dt;
+                this.base[body] = new_pos;
+                this.t0[body] = t;
+                w.bodies.vel[body] = new_vel;
+                this.version[body] += 1;
+                this.moving[body] = true;
+                if shift > 0.5 * w.config.contact_slop_m {
+                    changed[slot] = Some(body as u32);
+                }
+            };
         match rule {
             Rule::Ignore | Rule::Trigger => {}
-            Rule::Destroy {
-                first,
-                second,
-                restitution,
-            } => {
+            Rule::Destroy { first, second, restitution } => {
                 if first {
                     self.dead[i] = true;
                     self.version[i] += 1;
@@ -658,11 +574,8 @@ impl Stepper {
                 // each push driving a body into its other neighbours (and with a tiny slop this
                 // is a hair short of exact separation, which rounding could not keep anyway).
                 let excess = imp.contact.depth - 0.5 * cfg.contact_slop_m;
-                let push = if imp.started_inside && imp.contact.depth > cfg.contact_slop_m {
-                    n * excess
-                } else {
-                    DVec3::ZERO
-                };
+                let push =
+                    if imp.started_inside && imp.contact.depth > cfg.contact_slop_m { n * excess } else { DVec3::ZERO };
                 let new_pa = pa - push * (inv_ma / inv_sum);
                 let new_pb = pb + push * (inv_mb / inv_sum);
                 let (mut new_va, mut new_vb) = (va, vb);
@@ -672,12 +585,11 @@ impl Stepper {
                             // Impulse along n: dv = -(1 + e) (v.n) n, shared by inverse mass.
                             // Below the bounce threshold the contact is resting: no rebound, so a
                             // body on the ground under gravity settles instead of hopping.
-                            let e = if closing > cfg.bounce_threshold_mps {
-                                restitution
-                            } else {
-                                0.0
-                            };
-                            let jn = (1.0 + e) * closing * (1.0 + SLIDE_OVERCLIP) / inv_sum;
+                            let e = if closing > cfg.bounce_threshold_mps { restitution } else { 0.0 };
+                            // Only a resting (e = 0) contact is overclipped; an elastic bounce must
+                            // conserve energy exactly.
+                            let over = if e == 0.0 { 1.0 + SLIDE_OVERCLIP } else { 1.0 };
+                            let jn = (1.0 + e) * closing * over / inv_sum;
                             new_va = va - n * (jn * inv_ma);
                             new_vb = vb + n * (jn * inv_mb);
                             if e == 0.0 && inv_mb == 0.0 {
@@ -761,9 +673,7 @@ impl Stepper {
         let p_now = self.base[i];
         let p_end = self.pos_at(w, i, 1.0);
         let a0 = b.shape[i].world_aabb(p_now, b.rot[i]);
-        let swept = a0
-            .union(&a0.translated(p_end - p_now))
-            .inflated(w.config.contact_slop_m);
+        let swept = a0.union(&a0.translated(p_end - p_now)).inflated(w.config.contact_slop_m);
         // Other dynamic bodies: their full-step boxes still bound them unless they changed too,
         // in which case they were (or will be) re-queried themselves.
         let mut buf = std::mem::take(&mut self.query_buf);
@@ -868,11 +778,8 @@ impl Stepper {
         self.touching_now.dedup();
 
         // Impacts: the first one per pair.
-        self.records.sort_by(|p, q| {
-            ordered(p.key.0, p.key.1)
-                .cmp(&ordered(q.key.0, q.key.1))
-                .then(p.t.total_cmp(&q.t))
-        });
+        self.records
+            .sort_by(|p, q| ordered(p.key.0, p.key.1).cmp(&ordered(q.key.0, q.key.1)).then(p.t.total_cmp(&q.t)));
         let prev = &w.touching;
         let was = |k: (EntityId, EntityId)| prev.binary_search(&k).is_ok();
         let now = |k: (EntityId, EntityId)| self.touching_now.binary_search(&k).is_ok();
@@ -893,19 +800,14 @@ impl Stepper {
             }
         }
         let impacted = |k: (EntityId, EntityId)| {
-            self.records
-                .binary_search_by(|r| ordered(r.key.0, r.key.1).cmp(&k).then(Ordering::Greater))
-                .unwrap_err()
+            self.records.binary_search_by(|r| ordered(r.key.0, r.key.1).cmp(&k).then(Ordering::Greater)).unwrap_err()
         };
         // Touching now without an impact this tick (slid or grew into contact): a begin at the
         // end of the step.
         for r in &end_records {
             let key = ordered(r.key.0, r.key.1);
             let i = impacted(key);
-            let had_impact = self
-                .records
-                .get(i)
-                .is_some_and(|x| ordered(x.key.0, x.key.1) == key);
+            let had_impact = self.records.get(i).is_some_and(|x| ordered(x.key.0, x.key.1) == key);
             if !was(key) && !had_impact {
                 out.events.push(event(tick, r, Phase::Begin));
             }
@@ -916,11 +818,7 @@ impl Stepper {
                 continue;
             }
             let i = impacted(key);
-            if self
-                .records
-                .get(i)
-                .is_some_and(|x| ordered(x.key.0, x.key.1) == key)
-            {
+            if self.records.get(i).is_some_and(|x| ordered(x.key.0, x.key.1) == key) {
                 // Its impact this tick emitted the end if the pair separated (destroy or bounce).
                 let r = self.records[i];
                 if r.response != Response::Destroy {
@@ -928,15 +826,10 @@ impl Stepper {
                 }
                 continue;
             }
-            out.events
-                .push(end_without_contact(w, tick, key, &self.dead));
+            out.events.push(end_without_contact(w, tick, key, &self.dead));
         }
         out.events.sort_by(|x, y| {
-            x.toi
-                .total_cmp(&y.toi)
-                .then(x.a.cmp(&y.a))
-                .then(x.b.cmp(&y.b))
-                .then(x.phase.cmp(&y.phase))
+            x.toi.total_cmp(&y.toi).then(x.a.cmp(&y.a)).then(x.b.cmp(&y.b)).then(x.phase.cmp(&y.phase))
         });
         out.events.dedup_by(|x, y| x.key() == y.key());
         w.touching.clear();
@@ -960,15 +853,7 @@ fn separating(w: &World, imp: &Impact) -> bool {
 
 /// Convex contact with the plan's kernel choice (analytic, or GJK when the plan forces the
 /// general path). Triangle meshes always take the mesh kernel.
-fn convex_contact(
-    plan: &Plan,
-    a: &Shape,
-    ra: DQuat,
-    b: &Shape,
-    rb: DQuat,
-    d: DVec3,
-    margin: f64,
-) -> Option<Contact> {
+fn convex_contact(plan: &Plan, a: &Shape, ra: DQuat, b: &Shape, rb: DQuat, d: DVec3, margin: f64) -> Option<Contact> {
     if plan.force_general && Kernel::for_pair(a.kind(), b.kind()) != Kernel::Mesh {
         return narrow::general::contact(a, ra, b, rb, d, margin);
     }
@@ -995,11 +880,8 @@ fn response_of(rule: Rule) -> Response {
 
 fn event(tick: impact_protocol::Tick, r: &PairRecord, phase: Phase) -> CollisionEvent {
     // Events name the lower id first, with the normal pointing from it to the other.
-    let (a, b, normal) = if r.key.0 <= r.key.1 {
-        (r.key.0, r.key.1, r.normal_lo_hi)
-    } else {
-        (r.key.1, r.key.0, -r.normal_lo_hi)
-    };
+    let (a, b, normal) =
+        if r.key.0 <= r.key.1 { (r.key.0, r.key.1, r.normal_lo_hi) } else { (r.key.1, r.key.0, -r.normal_lo_hi) };
     CollisionEvent {
         tick,
         toi: r.t.clamp(0.0, 1.0),
@@ -1034,9 +916,7 @@ fn end_without_contact(
     };
     let (pa, ca) = (pos(key.0), w.class_of(key.0));
     let (pb, cb) = (pos(key.1), w.class_of(key.1));
-    let destroyed = [key.0, key.1]
-        .iter()
-        .any(|id| w.bodies.slot(*id).is_some_and(|s| dead[s]));
+    let destroyed = [key.0, key.1].iter().any(|id| w.bodies.slot(*id).is_some_and(|s| dead[s]));
     let response = match (ca, cb) {
         _ if destroyed => Response::Destroy,
         (Some(a), Some(b)) => response_of(w.config.classes.rule(a, b)),

@@ -47,15 +47,7 @@ impl Rule {
     /// The same rule seen from the other body's side.
     pub fn swapped(self) -> Rule {
         match self {
-            Rule::Destroy {
-                first,
-                second,
-                restitution,
-            } => Rule::Destroy {
-                first: second,
-                second: first,
-                restitution,
-            },
+            Rule::Destroy { first, second, restitution } => Rule::Destroy { first: second, second: first, restitution },
             other => other,
         }
     }
@@ -88,10 +80,7 @@ impl Classes {
     /// A table where every pair follows `default`.
     pub fn new(props: Vec<ClassProps>, default: Rule) -> Classes {
         let n = props.len();
-        Classes {
-            props,
-            rules: vec![default; n * n],
-        }
+        Classes { props, rules: vec![default; n * n] }
     }
 
     /// Sets the rule for `(a, b)` and its mirror for `(b, a)`.
@@ -109,10 +98,7 @@ impl Classes {
 
     /// Looks a class up by name.
     pub fn by_name(&self, name: &str) -> Option<ClassId> {
-        self.props
-            .iter()
-            .position(|p| p.name == name)
-            .map(|i| ClassId(i as u16))
+        self.props.iter().position(|p| p.name == name).map(|i| ClassId(i as u16))
     }
 
     /// Number of classes.
@@ -248,10 +234,7 @@ impl Bodies {
 
     /// Appends a body with an id larger than every existing one.
     pub fn push(&mut self, id: EntityId, b: NewBody) {
-        assert!(
-            self.id.last().is_none_or(|&last| last < id),
-            "entity ids must ascend"
-        );
+        assert!(self.id.last().is_none_or(|&last| last < id), "entity ids must ascend");
         self.id.push(id);
         self.class.push(b.class);
         self.radius.push(b.shape.bounding_radius());
@@ -323,11 +306,7 @@ impl World {
         if let Ok(s) = self.statics.id.binary_search(&id) {
             return Some(self.statics.class[s]);
         }
-        self.statics
-            .terrain
-            .as_ref()
-            .filter(|t| t.id == id)
-            .map(|t| t.class)
+        self.statics.terrain.as_ref().filter(|t| t.id == id).map(|t| t.class)
     }
 
     /// A deterministic 64-bit hash of the state (FNV-1a over the exact bits of every field that

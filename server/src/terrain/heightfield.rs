@@ -33,23 +33,14 @@ pub struct HeightField {
 
 impl HeightField {
     /// Builds a height field from rows of heights (`rows[iz][ix]`, metres above `origin.y`).
-    pub fn new(
-        origin: DVec3,
-        cell_x: f64,
-        cell_z: f64,
-        rows: &[Vec<f64>],
-    ) -> Result<HeightField, HeightFieldError> {
+    pub fn new(origin: DVec3, cell_x: f64, cell_z: f64, rows: &[Vec<f64>]) -> Result<HeightField, HeightFieldError> {
         let nz = rows.len();
         let nx = rows.first().map_or(0, Vec::len);
         if nz < 2 || nx < 2 || rows.iter().any(|r| r.len() != nx) {
-            return Err(HeightFieldError::Shape(format!(
-                "{nz} rows, first has {nx}"
-            )));
+            return Err(HeightFieldError::Shape(format!("{nz} rows, first has {nx}")));
         }
         if !(cell_x > 0.0 && cell_z > 0.0 && cell_x.is_finite() && cell_z.is_finite()) {
-            return Err(HeightFieldError::Value(format!(
-                "cell size {cell_x} x {cell_z} m"
-            )));
+            return Err(HeightFieldError::Value(format!("cell size {cell_x} x {cell_z} m")));
         }
         let heights: Vec<f64> = rows.iter().flatten().copied().collect();
         if let Some(i) = heights.iter().position(|h| !h.is_finite()) {
@@ -66,15 +57,7 @@ impl HeightField {
             min: origin + DVec3::new(0.0, lo, 0.0),
             max: origin + DVec3::new((nx - 1) as f64 * cell_x, hi, (nz - 1) as f64 * cell_z),
         };
-        Ok(HeightField {
-            origin,
-            cell_x,
-            cell_z,
-            nx,
-            nz,
-            heights,
-            bounds,
-        })
+        Ok(HeightField { origin, cell_x, cell_z, nx, nz, heights, bounds })
     }
 
     /// Cell size `(x, z)`, m.
@@ -88,12 +71,7 @@ impl HeightField {
     }
 
     fn vertex(&self, ix: usize, iz: usize) -> DVec3 {
-        self.origin
-            + DVec3::new(
-                ix as f64 * self.cell_x,
-                self.heights[iz * self.nx + ix],
-                iz as f64 * self.cell_z,
-            )
+        self.origin + DVec3::new(ix as f64 * self.cell_x, self.heights[iz * self.nx + ix], iz as f64 * self.cell_z)
     }
 
     /// The two triangles of cell `(ix, iz)`, counter-clockwise seen from above (normals up).
@@ -135,8 +113,7 @@ impl HeightField {
 
     /// Unit surface normal at `(x, z)` (pointing up).
     pub fn normal_at(&self, x: f64, z: f64) -> Option<DVec3> {
-        self.triangle_at(x, z)
-            .map(|t| Self::plane_normal(&t).normalize())
+        self.triangle_at(x, z).map(|t| Self::plane_normal(&t).normalize())
     }
 
     /// Calls `f` with every triangle whose cell overlaps `bounds` in x and z.
@@ -144,8 +121,7 @@ impl HeightField {
         if !bounds.overlaps(&self.bounds) {
             return;
         }
-        let cell =
-            |v: f64, o: f64, c: f64, n: usize| (((v - o) / c).floor().max(0.0) as usize).min(n - 2);
+        let cell = |v: f64, o: f64, c: f64, n: usize| (((v - o) / c).floor().max(0.0) as usize).min(n - 2);
         let x0 = cell(bounds.min.x, self.origin.x, self.cell_x, self.nx);
         let x1 = cell(bounds.max.x, self.origin.x, self.cell_x, self.nx);
         let z0 = cell(bounds.min.z, self.origin.z, self.cell_z, self.nz);
@@ -166,11 +142,7 @@ mod tests {
 
     /// A 2 x 2-cell field with hand-picked heights.
     fn field() -> HeightField {
-        let rows = vec![
-            vec![0.0, 1.0, 2.0],
-            vec![0.0, 2.0, 4.0],
-            vec![0.0, 0.0, 0.0],
-        ];
+        let rows = vec![vec![0.0, 1.0, 2.0], vec![0.0, 2.0, 4.0], vec![0.0, 0.0, 0.0]];
         HeightField::new(DVec3::new(10.0, 5.0, 20.0), 2.0, 2.0, &rows).unwrap()
     }
 
@@ -180,14 +152,7 @@ mod tests {
         // (x, z) = (11, 20.5): cell (0, 0), u = 0.5 >= v = 0.25 -> the upper-x triangle
         // P00 = (10, 5, 20), P11 = (12, 7, 22), P10 = (12, 6, 20).
         let t = f.triangle_at(11.0, 20.5).unwrap();
-        assert_eq!(
-            t,
-            [
-                DVec3::new(10.0, 5.0, 20.0),
-                DVec3::new(12.0, 7.0, 22.0),
-                DVec3::new(12.0, 6.0, 20.0)
-            ]
-        );
+        assert_eq!(t, [DVec3::new(10.0, 5.0, 20.0), DVec3::new(12.0, 7.0, 22.0), DVec3::new(12.0, 6.0, 20.0)]);
         // N = (P1 - P0) x (P2 - P0) = (2, 2, 2) x (2, 1, 0) = (2*0 - 2*1, 2*2 - 2*0, 2*1 - 2*2) = (-2, 4, -2).
         assert_eq!(HeightField::plane_normal(&t), DVec3::new(-2.0, 4.0, -2.0));
         // Qy = (-Nx Qx - Nz Qz + N.P0) / Ny = (2*11 + 2*20.5 + (-20 + 20 - 40)) / 4 = 5.75.
@@ -215,15 +180,7 @@ mod tests {
     fn bad_fields_are_refused() {
         assert!(HeightField::new(DVec3::ZERO, 1.0, 1.0, &[vec![0.0, 1.0]]).is_err());
         assert!(HeightField::new(DVec3::ZERO, 1.0, 1.0, &[vec![0.0, 1.0], vec![0.0]]).is_err());
-        assert!(
-            HeightField::new(DVec3::ZERO, 0.0, 1.0, &[vec![0.0, 1.0], vec![0.0, 1.0]]).is_err()
-        );
-        assert!(HeightField::new(
-            DVec3::ZERO,
-            1.0,
-            1.0,
-            &[vec![0.0, f64::NAN], vec![0.0, 1.0]]
-        )
-        .is_err());
+        assert!(HeightField::new(DVec3::ZERO, 0.0, 1.0, &[vec![0.0, 1.0], vec![0.0, 1.0]]).is_err());
+        assert!(HeightField::new(DVec3::ZERO, 1.0, 1.0, &[vec![0.0, f64::NAN], vec![0.0, 1.0]]).is_err());
     }
 }

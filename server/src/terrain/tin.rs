@@ -26,29 +26,17 @@ pub struct Tin {
 impl Tin {
     /// Wraps vertices and triangles. Indices out of range are an error.
     pub fn new(vertices: Vec<DVec3>, triangles: Vec<[u32; 3]>) -> Result<Tin, String> {
-        if let Some((i, t)) = triangles
-            .iter()
-            .enumerate()
-            .find(|(_, t)| t.iter().any(|&v| v as usize >= vertices.len()))
+        if let Some((i, t)) =
+            triangles.iter().enumerate().find(|(_, t)| t.iter().any(|&v| v as usize >= vertices.len()))
         {
-            return Err(format!(
-                "triangle {i} {t:?} names a vertex past the {} given",
-                vertices.len()
-            ));
+            return Err(format!("triangle {i} {t:?} names a vertex past the {} given", vertices.len()));
         }
-        Ok(Tin {
-            vertices,
-            triangles,
-        })
+        Ok(Tin { vertices, triangles })
     }
 
     fn triangle(&self, i: usize) -> [DVec3; 3] {
         let t = self.triangles[i];
-        [
-            self.vertices[t[0] as usize],
-            self.vertices[t[1] as usize],
-            self.vertices[t[2] as usize],
-        ]
+        [self.vertices[t[0] as usize], self.vertices[t[1] as usize], self.vertices[t[2] as usize]]
     }
 
     /// The first triangle containing `(x, z)` and the weights there. Weights within `-1e-12` of
@@ -102,11 +90,7 @@ mod tests {
     #[test]
     fn a_negative_weight_means_outside() {
         let t = tin();
-        let tri0 = [
-            DVec3::new(0.0, 0.0, 0.0),
-            DVec3::new(4.0, 4.0, 0.0),
-            DVec3::new(4.0, 8.0, 4.0),
-        ];
+        let tri0 = [DVec3::new(0.0, 0.0, 0.0), DVec3::new(4.0, 4.0, 0.0), DVec3::new(4.0, 8.0, 4.0)];
         let w = barycentric_xz(1.0, 3.0, &tri0).unwrap();
         assert!(w.iter().any(|&x| x < 0.0), "{w:?}");
         assert!(t.locate(5.0, 1.0).is_none());

@@ -78,39 +78,21 @@ mod tests {
     #[test]
     fn degenerate_cases() {
         // Equal velocities: B = 0.
-        assert_eq!(
-            swept_sphere(DVec3::new(5.0, 0.0, 0.0), DVec3::ZERO, 1.0),
-            SweptSphere::Miss
-        );
+        assert_eq!(swept_sphere(DVec3::new(5.0, 0.0, 0.0), DVec3::ZERO, 1.0), SweptSphere::Miss);
         // Coincident centres: overlapping.
-        assert_eq!(
-            swept_sphere(DVec3::ZERO, DVec3::X, 1.0),
-            SweptSphere::Overlapping
-        );
+        assert_eq!(swept_sphere(DVec3::ZERO, DVec3::X, 1.0), SweptSphere::Overlapping);
         // Negative discriminant: passes 3 m away with radius sum 2.
-        assert_eq!(
-            swept_sphere(DVec3::new(-5.0, 3.0, 0.0), DVec3::new(10.0, 0.0, 0.0), 2.0),
-            SweptSphere::Miss
-        );
+        assert_eq!(swept_sphere(DVec3::new(-5.0, 3.0, 0.0), DVec3::new(10.0, 0.0, 0.0), 2.0), SweptSphere::Miss);
         // Moving apart.
-        assert_eq!(
-            swept_sphere(DVec3::new(5.0, 0.0, 0.0), DVec3::new(1.0, 0.0, 0.0), 1.0),
-            SweptSphere::Miss
-        );
+        assert_eq!(swept_sphere(DVec3::new(5.0, 0.0, 0.0), DVec3::new(1.0, 0.0, 0.0), 1.0), SweptSphere::Miss);
         // Grazing: closest approach exactly the radius sum is a touch at the closest point.
         match swept_sphere(DVec3::new(-5.0, 2.0, 0.0), DVec3::new(10.0, 0.0, 0.0), 2.0) {
             SweptSphere::Hit(t) => assert!((t - 0.5).abs() < 1e-12),
             other => panic!("{other:?}"),
         }
         // Stops short of contact.
-        assert_eq!(
-            swept_sphere(DVec3::new(-10.0, 0.0, 0.0), DVec3::new(5.0, 0.0, 0.0), 2.0),
-            SweptSphere::Miss
-        );
-        assert_eq!(
-            closest_approach_sq(DVec3::new(-5.0, 3.0, 0.0), DVec3::new(10.0, 0.0, 0.0)),
-            9.0
-        );
+        assert_eq!(swept_sphere(DVec3::new(-10.0, 0.0, 0.0), DVec3::new(5.0, 0.0, 0.0), 2.0), SweptSphere::Miss);
+        assert_eq!(closest_approach_sq(DVec3::new(-5.0, 3.0, 0.0), DVec3::new(10.0, 0.0, 0.0)), 9.0);
     }
 
     proptest! {

@@ -9,11 +9,7 @@ pub fn median_ms(samples: &mut [Duration]) -> f64 {
     }
     samples.sort_unstable();
     let mid = samples.len() / 2;
-    let m = if samples.len() % 2 == 1 {
-        samples[mid]
-    } else {
-        (samples[mid - 1] + samples[mid]) / 2
-    };
+    let m = if samples.len() % 2 == 1 { samples[mid] } else { (samples[mid - 1] + samples[mid]) / 2 };
     m.as_secs_f64() * 1e3
 }
 

@@ -84,16 +84,10 @@ fn run_impact(world: &World, plan: Plan, warmup: u32, ticks: u32) -> Measured {
     }
     if std::env::var_os("IMPACT_PROFILE").is_some() {
         for (name, d) in stepper.stats.stages() {
-            eprintln!(
-                "    {name:<12} {:>9.4} ms/tick",
-                d.as_secs_f64() * 1e3 / f64::from(warmup + ticks)
-            );
+            eprintln!("    {name:<12} {:>9.4} ms/tick", d.as_secs_f64() * 1e3 / f64::from(warmup + ticks));
         }
     }
-    Measured {
-        ms: median_ms(&mut samples),
-        pairs: w.touching.len(),
-    }
+    Measured { ms: median_ms(&mut samples), pairs: w.touching.len() }
 }
 
 fn run_rapier(world: &World, warmup: u32, ticks: u32) -> Measured {
@@ -129,41 +123,20 @@ fn run_rapier(world: &World, warmup: u32, ticks: u32) -> Measured {
                 c.set_translation(p.as_vec3());
             }
         }
-        pipeline.step(
-            0.0,
-            &mut islands,
-            &mut broad,
-            &mut narrow,
-            &mut bodies,
-            &mut colliders,
-            &(),
-            &(),
-        );
+        pipeline.step(0.0, &mut islands, &mut broad, &mut narrow, &mut bodies, &mut colliders, &(), &());
         if k >= warmup {
             samples.push(t.elapsed());
         }
     }
-    let pairs = narrow
-        .contact_pairs()
-        .filter(|p| {
-            p.manifolds()
-                .iter()
-                .any(|m| m.points.iter().any(|c| c.dist < 0.0))
-        })
-        .count();
-    Measured {
-        ms: median_ms(&mut samples),
-        pairs,
-    }
+    let pairs =
+        narrow.contact_pairs().filter(|p| p.manifolds().iter().any(|m| m.points.iter().any(|c| c.dist < 0.0))).count();
+    Measured { ms: median_ms(&mut samples), pairs }
 }
 
 /// Runs the suite.
 pub fn run(a: &ScaleArgs) -> Result<()> {
     println!("scale: moving spheres r = 0.5 m, one per 8 m^3, speeds up to 5 m/s, 64 Hz; median of {} ticks after {} warm-up", a.ticks, a.warmup);
-    println!(
-        "{:>8} {:<22} {:>12} {:>10} {:>12}",
-        "bodies", "engine", "ms/tick", "pairs", "vs rapier"
-    );
+    println!("{:>8} {:<22} {:>12} {:>10} {:>12}", "bodies", "engine", "ms/tick", "pairs", "vs rapier");
     let mut growth: Vec<(f64, f64)> = Vec::new();
     for &n in &a.bodies {
         progress(&format!("{n} bodies: building"));
@@ -193,10 +166,7 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
             );
         }
         if let Some(p) = &peer {
-            println!(
-                "{n:>8} {:<22} {:>12.4} {:>10} {:>12}",
-                "rapier", p.ms, p.pairs, "1.0x"
-            );
+            println!("{n:>8} {:<22} {:>12.4} {:>10} {:>12}", "rapier", p.ms, p.pairs, "1.0x");
             if a.json {
                 json_line(
                     &json!({"suite": "scale", "engine": "rapier", "bodies": n, "ms_per_tick": p.ms, "pairs": p.pairs}),
@@ -218,21 +188,8 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
             }
             for kind in kinds {
                 progress(&format!("{n} bodies: broadphase {}", kind.name()));
-                let m = run_impact(
-                    world,
-                    Plan {
-                        broadphase: kind,
-                        ..plan.clone()
-                    },
-                    a.warmup.min(5),
-                    a.ticks.min(30),
-                );
-                println!(
-                    "{n:>8} {:<22} {:>12.4} {:>10}",
-                    format!("impact broadphase={}", kind.name()),
-                    m.ms,
-                    m.pairs
-                );
+                let m = run_impact(world, Plan { broadphase: kind, ..plan.clone() }, a.warmup.min(5), a.ticks.min(30));
+                println!("{n:>8} {:<22} {:>12.4} {:>10}", format!("impact broadphase={}", kind.name()), m.ms, m.pairs);
                 if a.json {
                     json_line(
                         &json!({"suite": "scale", "engine": "impact", "variant": format!("broadphase={}", kind.name()), "bodies": n, "ms_per_tick": m.ms, "pairs": m.pairs}),
@@ -240,12 +197,7 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
                 }
             }
             progress(&format!("{n} bodies: general path"));
-            let m = run_impact(
-                world,
-                Plan::general(world),
-                a.warmup.min(5),
-                a.ticks.min(30),
-            );
+            let m = run_impact(world, Plan::general(world), a.warmup.min(5), a.ticks.min(30));
             println!(
                 "{n:>8} {:<22} {:>12.4} {:>10} {:>12}",
                 "impact general (GJK)",
