@@ -1,92 +1,72 @@
-//! A uniform grid. The cell is as large as the largest box, and each box is filed under the cell
-//! of its lower corner, so two overlapping boxes sit in the same or adjacent cells. Each cell is
-//! compared with itself and 13 of its 26 neighbours (those that come after it), so every pair of
-//! cells is visited once.
+//! A uniform grid, as sorted cell keys. The cell is as large as the largest box, and each box is
+//! filed under the cell of its lower corner, so two overlapping boxes sit in the same or
+//! adjacent cells. Cells are numbered row by row (`x` fastest), and the boxes are kept sorted by
+//! cell number with a radix sort, O(n) whatever the motion. (An insertion sort from the previous
+//! tick's order was tried: a body changing cell along z moves a whole slab of entries, which
+//! grows as n^(2/3).)
 //!
-//! Two layouts, chosen per tick:
-//! - **dense**: when the occupied region has at most a few cells per body (the common case, a
-//!   populated arena), cells are indexed directly in a grid padded by one cell on every side, so
-//!   a neighbour is a fixed offset away and needs neither a bounds check nor a hash;
-//! - **hashed**: for sparse worlds (a few bodies spread over kilometres), cells hash into a table
-//!   of twice the body count, and entries carry their cell to reject hash collisions.
-//!
-//! Both fill their table with a counting sort: O(n), no allocation once warm, and no hash-map
-//! iteration order anywhere (buckets are visited in index order, a bucket's entries in body
-//! order).
+//! Each cell is compared with itself and the 13 of its 26 neighbours that come after it, so each
+//! pair of cells is visited once. Those 13 lie in five runs of consecutive cell numbers: the rest
+//! of its own row (`x + 1`), and three cells (`x - 1 ..= x + 1`) in each of four later rows. As the
+//! sweep walks the boxes in cell order, the start of each run only moves forward, so one cursor
+//! per run finds it: the whole sweep is O(n + pairs) and walks memory in order. No table grows
+//! with the volume of the world, so a sparse world costs what a dense one does.
 
 use crate::sim::shape::Aabb;
 use glam::DVec3;
 
-#[derive(Clone, Copy, Debug, Default)]
-struct Entry {
-    min: DVec3,
-    max: DVec3,
-    body: u32,
-}
-
-/// Grid state; the buffers are reused from tick to tick.
+/// Grid state, carried across ticks (the sort order) and reused (the buffers).
 #[derive(Debug, Default)]
 pub struct Grid {
     cell: f64,
     origin: DVec3,
-    dense: bool,
+    /// Cells per row and per slab (rows are padded by one cell at each end, slabs by one row).
+    row: u64,
+    slab: u64,
+    /// Padded dimensions in cells.
     dims: [i64; 3],
-    mask: usize,
-    start: Vec<u32>,
-    entries: Vec<Entry>,
-    cells: Vec<[i64; 3]>,
-    bucket_of: Vec<u32>,
-    cursor: Vec<u32>,
+    /// Body indices sorted by cell key.
+    order: Vec<u32>,
+    /// Cell key of `order[k]`.
+    keys: Vec<u64>,
+    /// Boxes in sorted order (for memory-order access in the sweep).
+    boxes: Vec<Aabb>,
+    /// Whether the last build succeeded (keys fit in 64 bits).
+    built: bool,
+    /// `key << 32 | body`, and the radix sort's scratch.
+    packed: Vec<u64>,
+    scratch: Vec<u64>,
 }
 
-/// The 13 neighbour offsets lexicographically after (0, 0, 0).
-const FORWARD: [[i64; 3]; 13] = {
-    let mut out = [[0i64; 3]; 13];
-    let mut n = 0;
-    let mut dz = -1;
-    while dz <= 1 {
-        let mut dy = -1;
-        while dy <= 1 {
-            let mut dx = -1;
-            while dx <= 1 {
-                if dz > 0 || (dz == 0 && (dy > 0 || (dy == 0 && dx > 0))) {
-                    out[n] = [dx, dy, dz];
-                    n += 1;
-                }
-                dx += 1;
-            }
-            dy += 1;
+/// Stable LSD radix sort of `v` by bits `32 .. 32 + bits` (11-bit digits).
+fn radix_sort_high(v: &mut Vec<u64>, scratch: &mut Vec<u64>, bits: u32) {
+    const DIGIT: u32 = 11;
+    let mut shift = 32;
+    while shift < 32 + bits {
+        let mut count = [0u32; 1 << DIGIT];
+        for e in v.iter() {
+            count[((e >> shift) & ((1 << DIGIT) - 1)) as usize] += 1;
         }
-        dz += 1;
-    }
-    out
-};
-
-/// Most cells per body for the dense layout.
-const DENSE_CELLS_PER_BODY: i64 = 64;
-
-#[inline]
-fn hash(c: [i64; 3]) -> u64 {
-    let h = (c[0] as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        ^ (c[1] as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
-        ^ (c[2] as u64).wrapping_mul(0x1656_67B1_9E37_79F9);
-    h ^ (h >> 29)
-}
-
-/// `floor` by truncation (a single instruction on every x86-64, where `f64::floor` is a libm
-/// call without SSE4.1).
-#[inline]
-fn floor_i64(q: f64) -> i64 {
-    let t = q as i64;
-    if (t as f64) > q {
-        t - 1
-    } else {
-        t
+        let mut sum = 0;
+        for c in count.iter_mut() {
+            let here = *c;
+            *c = sum;
+            sum += here;
+        }
+        scratch.clear();
+        scratch.resize(v.len(), 0);
+        for e in v.iter() {
+            let d = ((e >> shift) & ((1 << DIGIT) - 1)) as usize;
+            scratch[count[d] as usize] = *e;
+            count[d] += 1;
+        }
+        std::mem::swap(v, scratch);
+        shift += DIGIT;
     }
 }
 
 #[inline]
-fn overlap(a: &Entry, b: &Entry) -> bool {
+fn overlap(a: &Aabb, b: &Aabb) -> bool {
     a.min.x <= b.max.x
         && b.min.x <= a.max.x
         && a.min.y <= b.max.y
@@ -96,23 +76,30 @@ fn overlap(a: &Entry, b: &Entry) -> bool {
 }
 
 impl Grid {
+    /// Cell coordinates of a point (may be negative or past the grid for query points).
     #[inline]
-    fn cell_of(&self, p: DVec3) -> [i64; 3] {
+    fn coords(&self, p: DVec3) -> [i64; 3] {
         let q = (p - self.origin) / self.cell;
-        [floor_i64(q.x), floor_i64(q.y), floor_i64(q.z)]
+        let f = |v: f64| {
+            let t = v as i64;
+            if (t as f64) > v {
+                t - 1
+            } else {
+                t
+            }
+        };
+        [f(q.x), f(q.y), f(q.z)]
     }
 
-    /// Table slot of a cell: its padded linear index (dense) or its hash (hashed).
+    /// Key of in-grid cell coordinates (each shifted by one for the padding).
     #[inline]
-    fn slot(&self, c: [i64; 3]) -> usize {
-        if self.dense {
-            ((c[0] + 1) + self.dims[0] * ((c[1] + 1) + self.dims[1] * (c[2] + 1))) as usize
-        } else {
-            hash(c) as usize & self.mask
-        }
+    fn key(&self, c: [i64; 3]) -> u64 {
+        (c[0] + 1) as u64 + self.row * (c[1] + 1) as u64 + self.slab * (c[2] + 1) as u64
     }
 
-    fn build(&mut self, aabbs: &[Aabb]) {
+    /// Sorts the boxes by cell. Returns false when the world is too sparse for 64-bit keys
+    /// (the caller then uses sweep and prune).
+    fn build(&mut self, aabbs: &[Aabb]) -> bool {
         let n = aabbs.len();
         let mut origin = DVec3::splat(f64::INFINITY);
         let mut top = DVec3::splat(f64::NEG_INFINITY);
@@ -123,99 +110,86 @@ impl Grid {
             cell = cell.max(b.extents().max_element());
         }
         self.origin = origin;
-        // A zero-size set of boxes still needs a positive cell.
         self.cell = if cell > 0.0 { cell } else { 1.0 };
-        self.cells.clear();
-        self.cells.extend(aabbs.iter().map(|b| {
-            let q = (b.min - origin) / self.cell;
-            [q.x as i64, q.y as i64, q.z as i64] // non-negative: truncation is floor
-        }));
         let span = if n == 0 { DVec3::ZERO } else { (top - origin) / self.cell };
-        // Padded dimensions; f64 so a huge sparse world cannot overflow the product.
+        // Padded dimensions: one empty cell (row, slab) on each side, so x - 1 and y - 1 never
+        // wrap into the previous row or slab.
         let dims = [span.x, span.y, span.z].map(|s| s.floor() + 3.0);
-        let total = dims[0] * dims[1] * dims[2];
-        self.dense = total <= (DENSE_CELLS_PER_BODY * (n as i64).max(64)) as f64;
-        let table = if self.dense {
-            self.dims = dims.map(|d| d as i64);
-            total as usize
+        if dims[0] * dims[1] * dims[2] >= 1.8e19 {
+            self.built = false;
+            return false;
+        }
+        self.dims = dims.map(|d| d as i64);
+        self.row = dims[0] as u64;
+        self.slab = self.row * dims[1] as u64;
+        // Sort (cell key, body) with an LSD radix sort on the key's used bits: O(n) whatever
+        // the motion, and stable, so equal keys stay in body order.
+        let key_bits = 64 - (self.slab * dims[2] as u64).leading_zeros();
+        let mut packed = std::mem::take(&mut self.packed);
+        packed.clear();
+        if key_bits <= 32 {
+            packed.extend(aabbs.iter().enumerate().map(|(i, b)| self.key(self.coords(b.min)) << 32 | i as u64));
+            radix_sort_high(&mut packed, &mut self.scratch, key_bits);
         } else {
-            let t = (2 * n).next_power_of_two().max(2);
-            self.mask = t - 1;
-            t
-        };
-        self.start.clear();
-        self.start.resize(table + 1, 0);
-        self.bucket_of.clear();
-        for k in 0..n {
-            let s = self.slot(self.cells[k]);
-            self.bucket_of.push(s as u32);
-            self.start[s + 1] += 1;
+            // Keys too wide to pack with an index: a comparison sort on (key, body).
+            let mut wide: Vec<(u64, u32)> =
+                aabbs.iter().enumerate().map(|(i, b)| (self.key(self.coords(b.min)), i as u32)).collect();
+            wide.sort_unstable();
+            self.keys.clear();
+            self.order.clear();
+            self.keys.extend(wide.iter().map(|w| w.0));
+            self.order.extend(wide.iter().map(|w| w.1));
         }
-        for k in 0..table {
-            self.start[k + 1] += self.start[k];
+        if key_bits <= 32 {
+            self.keys.clear();
+            self.order.clear();
+            self.keys.extend(packed.iter().map(|e| e >> 32));
+            self.order.extend(packed.iter().map(|e| *e as u32));
         }
-        self.entries.clear();
-        self.entries.resize(n, Entry::default());
-        self.cursor.clear();
-        self.cursor.extend_from_slice(&self.start[..table]);
-        // Cells of the entries, in table order (needed by the hashed layout's collision check).
-        let mut sorted_cells = std::mem::take(&mut self.cells);
-        let unsorted = sorted_cells.clone();
-        for (i, b) in aabbs.iter().enumerate() {
-            let k = self.bucket_of[i] as usize;
-            let at = self.cursor[k] as usize;
-            self.cursor[k] += 1;
-            self.entries[at] = Entry { min: b.min, max: b.max, body: i as u32 };
-            sorted_cells[at] = unsorted[i];
-        }
-        self.cells = sorted_cells;
+        self.packed = packed;
+        self.boxes.clear();
+        self.boxes.extend(self.order.iter().map(|&i| aabbs[i as usize]));
+        self.built = true;
+        true
     }
 
     /// Appends every overlapping pair `(i, j)`, `i < j`.
     pub fn pairs(&mut self, aabbs: &[Aabb], out: &mut Vec<(u32, u32)>) {
-        self.build(aabbs);
-        if self.dense {
-            let (dx, dy) = (self.dims[0], self.dims[0] * self.dims[1]);
-            let offsets = FORWARD.map(|o| (o[0] + o[1] * dx + o[2] * dy) as isize);
-            for p in 0..self.entries.len() {
-                let e = self.entries[p];
-                let own = self.bucket_of[e.body as usize] as usize;
-                let end = self.start[own + 1] as usize;
-                for f in &self.entries[p + 1..end] {
-                    if overlap(&e, f) {
-                        out.push((e.body.min(f.body), e.body.max(f.body)));
-                    }
+        if !self.build(aabbs) {
+            return super::brute::pairs(aabbs, out);
+        }
+        let n = self.keys.len();
+        let (row, slab) = (self.row, self.slab);
+        // The four later rows: (y + 1, z), and (y - 1 ..= y + 1, z + 1), as offsets of their
+        // x - 1 cell from the current cell.
+        let runs = [row - 1, slab - row - 1, slab - 1, slab + row - 1];
+        let mut cursor = [0usize; 4];
+        let push = |out: &mut Vec<(u32, u32)>, a: u32, b: u32| out.push((a.min(b), a.max(b)));
+        for p in 0..n {
+            let key = self.keys[p];
+            let a = self.boxes[p];
+            let body = self.order[p];
+            // Own cell (later entries) and the next cell of the row.
+            let mut q = p + 1;
+            while q < n && self.keys[q] <= key + 1 {
+                if overlap(&a, &self.boxes[q]) {
+                    push(out, body, self.order[q]);
                 }
-                for off in offsets {
-                    let k = (own as isize + off) as usize;
-                    for f in &self.entries[self.start[k] as usize..self.start[k + 1] as usize] {
-                        if overlap(&e, f) {
-                            out.push((e.body.min(f.body), e.body.max(f.body)));
-                        }
-                    }
-                }
+                q += 1;
             }
-        } else {
-            for p in 0..self.entries.len() {
-                let e = self.entries[p];
-                let c = self.cells[p];
-                let own = self.slot(c);
-                let end = self.start[own + 1] as usize;
-                for q in p + 1..end {
-                    let f = &self.entries[q];
-                    if self.cells[q] == c && overlap(&e, f) {
-                        out.push((e.body.min(f.body), e.body.max(f.body)));
-                    }
+            for r in 0..4 {
+                let lo = key + runs[r];
+                let hi = lo + 2;
+                let mut c = cursor[r];
+                while c < n && self.keys[c] < lo {
+                    c += 1;
                 }
-                for off in FORWARD {
-                    let nc = [c[0] + off[0], c[1] + off[1], c[2] + off[2]];
-                    let k = self.slot(nc);
-                    for q in self.start[k] as usize..self.start[k + 1] as usize {
-                        let f = &self.entries[q];
-                        if self.cells[q] == nc && overlap(&e, f) {
-                            out.push((e.body.min(f.body), e.body.max(f.body)));
-                        }
+                cursor[r] = c;
+                while c < n && self.keys[c] <= hi {
+                    if overlap(&a, &self.boxes[c]) {
+                        push(out, body, self.order[c]);
                     }
+                    c += 1;
                 }
             }
         }
@@ -223,33 +197,28 @@ impl Grid {
 
     /// Appends every box (from the last build) overlapping `query`.
     pub fn query(&self, aabbs: &[Aabb], query: &Aabb, out: &mut Vec<u32>) {
-        if self.entries.len() != aabbs.len() || self.entries.is_empty() {
+        if !self.built || self.keys.len() != aabbs.len() || self.keys.is_empty() {
             return super::brute::query(aabbs, query, out);
         }
-        let mut lo = self.cell_of(query.min - DVec3::splat(self.cell));
-        let mut hi = self.cell_of(query.max);
-        if self.dense {
-            // Clamp to the grid's occupied range (padding cells are empty).
-            for k in 0..3 {
-                lo[k] = lo[k].max(0);
-                hi[k] = hi[k].min(self.dims[k] - 3);
-            }
-        }
-        let span = (0..3).map(|k| (hi[k] - lo[k] + 1).max(0) as u128).product::<u128>();
-        if span > 4096 {
+        // Cells outside the padded grid hold nothing; clamping keeps keys from wrapping.
+        let lo = self.coords(query.min - DVec3::splat(self.cell));
+        let hi = self.coords(query.max);
+        let lo: [i64; 3] = std::array::from_fn(|k| lo[k].clamp(-1, self.dims[k] - 2));
+        let hi: [i64; 3] = std::array::from_fn(|k| hi[k].clamp(-1, self.dims[k] - 2));
+        let rows = (hi[1] - lo[1] + 1).max(0) as u128 * (hi[2] - lo[2] + 1).max(0) as u128;
+        if rows > 1024 {
             return super::brute::query(aabbs, query, out);
         }
-        let q = Entry { min: query.min, max: query.max, body: 0 };
         for z in lo[2]..=hi[2] {
             for y in lo[1]..=hi[1] {
-                for x in lo[0]..=hi[0] {
-                    let c = [x, y, z];
-                    let k = self.slot(c);
-                    for p in self.start[k] as usize..self.start[k + 1] as usize {
-                        if (self.dense || self.cells[p] == c) && overlap(&self.entries[p], &q) {
-                            out.push(self.entries[p].body);
-                        }
+                let first = self.key([lo[0], y, z]);
+                let last = self.key([hi[0], y, z]);
+                let mut c = self.keys.partition_point(|&k| k < first);
+                while c < self.keys.len() && self.keys[c] <= last {
+                    if overlap(&self.boxes[c], query) {
+                        out.push(self.order[c]);
                     }
+                    c += 1;
                 }
             }
         }

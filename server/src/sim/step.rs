@@ -9,7 +9,7 @@ use crate::query::ray;
 use crate::sim::input::{self, TickInput};
 use crate::sim::plan::Plan;
 use crate::sim::shape::{Aabb, Shape};
-use crate::sim::world::{Rule, World};
+use crate::sim::world::{ClassId, Rule, World};
 use crate::toi::analytic::{swept_sphere, SweptSphere};
 use crate::toi::bisect::first_contact;
 use glam::{DQuat, DVec3};
@@ -117,7 +117,28 @@ impl PartialOrd for Impact {
 impl Ord for Impact {
     /// Reversed so the max-heap pops the earliest impact; ties broken by the pair.
     fn cmp(&self, other: &Self) -> Ordering {
-        other.t.total_cmp(&self.t).then_with(|| (other.a, other.b).cmp(&(self.a, self.b)))
+        other
+            .t
+            .total_cmp(&self.t)
+            .then_with(|| (other.a, other.b, other.ver_a, other.ver_b).cmp(&(self.a, self.b, self.ver_a, self.ver_b)))
+    }
+}
+
+/// A pair to test this tick.
+#[derive(Clone, Copy, Debug)]
+struct Cand {
+    a: u32,
+    b: Partner,
+    /// Contact at the end of the step on the paths the tick started with (within the slop).
+    /// Valid while neither body's path changed.
+    end: Option<Contact>,
+    /// `end` was computed (candidates found mid-step have none).
+    end_valid: bool,
+}
+
+impl Cand {
+    fn new(a: u32, b: Partner) -> Cand {
+        Cand { a, b, end: None, end_valid: false }
     }
 }
 
@@ -151,9 +172,11 @@ pub struct Stepper {
     clip: Vec<[DVec3; 3]>,
     clip_len: Vec<u8>,
     pairs: Vec<(u32, u32)>,
-    candidates: Vec<(u32, Partner)>,
+    candidates: Vec<Cand>,
     heap: BinaryHeap<Impact>,
+    triggers: Vec<Impact>,
     records: Vec<PairRecord>,
+    end_records: Vec<PairRecord>,
     touching_now: Vec<(EntityId, EntityId)>,
     query_buf: Vec<u32>,
     static_buf: Vec<u32>,
@@ -180,7 +203,9 @@ impl Stepper {
             pairs: Vec::new(),
             candidates: Vec::new(),
             heap: BinaryHeap::new(),
+            triggers: Vec::new(),
             records: Vec::new(),
+            end_records: Vec::new(),
             touching_now: Vec::new(),
             query_buf: Vec::new(),
             static_buf: Vec::new(),
@@ -226,28 +251,28 @@ impl Stepper {
             }
         }
         let slop = cfg.contact_slop_m;
-        self.aabbs.clear();
+        // Plain indexed writes into buffers sized once: this loop runs for every body every tick.
+        self.aabbs.resize(n, Aabb::EMPTY);
         self.base.clear();
+        self.base.extend_from_slice(&b.pos);
         self.t0.clear();
+        self.t0.resize(n, 0.0);
         self.version.clear();
+        self.version.resize(n, 0);
         self.moving.clear();
+        self.moving.extend(b.vel.iter().map(|v| *v != DVec3::ZERO));
         self.dead.clear();
+        self.dead.resize(n, false);
         self.count.clear();
         self.count.resize(n, 0);
         self.clip_len.clear();
+        self.clip_len.resize(n, 0);
         self.clip.resize(n, [DVec3::ZERO; 3]);
+        let pad = DVec3::splat(slop);
         for i in 0..n {
             let p0 = b.pos[i];
             let p1 = p0 + b.vel[i] * dt;
-            let a0 = b.shape[i].world_aabb(p0, b.rot[i]);
-            let a1 = a0.translated(p1 - p0);
-            self.aabbs.push(a0.union(&a1).inflated(slop));
-            self.base.push(p0);
-            self.t0.push(0.0);
-            self.version.push(0);
-            self.moving.push(b.vel[i] != DVec3::ZERO);
-            self.dead.push(false);
-            self.clip_len.push(0);
+            self.aabbs[i] = Aabb { min: p0.min(p1) + b.aabb_lo[i] - pad, max: p0.max(p1) + b.aabb_hi[i] + pad };
         }
         self.lap(&mut clock, |s| &mut s.integrate, &mut stats);
 
@@ -261,7 +286,7 @@ impl Stepper {
             if cfg.classes.rule(b.class[i as usize], b.class[j as usize]) == Rule::Ignore {
                 continue;
             }
-            self.candidates.push((i, Partner::Body(j)));
+            self.candidates.push(Cand::new(i, Partner::Body(j)));
         }
         if self.plan.statics || self.plan.terrain {
             for i in 0..n {
@@ -273,14 +298,26 @@ impl Stepper {
         }
         self.lap(&mut clock, |s| &mut s.broadphase, &mut stats);
 
-        // 4. Narrowphase and time of impact for every candidate.
+        // 4. Narrowphase and time of impact for every candidate, and whether it touches at the
+        //    end of the step on its current path (reused for events if nothing changes it).
+        //    Triggers change no path, so they wait outside the heap and are settled after it.
         stats.pairs_tested = self.candidates.len() as u32;
         stats.toi_tests = 0;
         self.heap.clear();
+        self.triggers.clear();
         for k in 0..self.candidates.len() {
-            let (i, p) = self.candidates[k];
-            if let Some(imp) = self.impact(w, i, p, 0.0, &mut stats.toi_tests) {
-                self.heap.push(imp);
+            let Cand { a, b: p, .. } = self.candidates[k];
+            let (imp, end) = match self.sphere_pair(w, a, p) {
+                Some(fast) => fast,
+                None => {
+                    let imp = self.impact(w, a, p, 0.0, &mut stats.toi_tests);
+                    (imp, self.end_contact(w, a, p))
+                }
+            };
+            self.candidates[k].end = end;
+            self.candidates[k].end_valid = true;
+            if let Some(imp) = imp {
+                self.schedule(w, imp);
             }
         }
         self.lap(&mut clock, |s| &mut s.narrowphase, &mut stats);
@@ -294,18 +331,10 @@ impl Stepper {
             if self.dead[i] || matches!(imp.b, Partner::Body(j) if self.dead[j as usize]) {
                 continue;
             }
-            let ver_b = match imp.b {
-                Partner::Body(j) => self.version[j as usize],
-                _ => 0,
-            };
-            if imp.ver_a != self.version[i] || imp.ver_b != ver_b {
+            if !self.is_current(&imp) {
                 // A path changed since this was computed: test again from the later change.
-                let from = match imp.b {
-                    Partner::Body(j) => self.t0[i].max(self.t0[j as usize]),
-                    _ => self.t0[i],
-                };
-                if let Some(again) = self.impact(w, imp.a, imp.b, from, &mut stats.toi_tests) {
-                    self.heap.push(again);
+                if let Some(again) = self.impact(w, imp.a, imp.b, self.search_from(&imp), &mut stats.toi_tests) {
+                    self.schedule(w, again);
                 }
                 continue;
             }
@@ -347,6 +376,20 @@ impl Stepper {
                 self.requery(w, body, &mut stats.toi_tests);
             }
         }
+        // Triggers: record those whose bodies kept their paths; search again those that changed.
+        let mut triggers = std::mem::take(&mut self.triggers);
+        for imp in &triggers {
+            if self.dead[imp.a as usize] || matches!(imp.b, Partner::Body(j) if self.dead[j as usize]) {
+                continue;
+            }
+            if self.is_current(imp) {
+                self.resolve(w, imp);
+            } else if let Some(again) = self.impact(w, imp.a, imp.b, self.search_from(imp), &mut stats.toi_tests) {
+                self.resolve(w, &again);
+            }
+        }
+        triggers.clear();
+        self.triggers = triggers;
         stats.resolutions = resolutions;
         self.lap(&mut clock, |s| &mut s.resolve, &mut stats);
 
@@ -356,7 +399,9 @@ impl Stepper {
             b.pos[i] = self.base[i] + b.vel[i] * ((1.0 - self.t0[i]) * dt);
         }
         self.finish_events(w, out);
-        w.bodies.remove_flagged(&self.dead);
+        if self.dead.contains(&true) {
+            w.bodies.remove_flagged(&self.dead);
+        }
         w.tick = w.tick.next();
         self.lap(&mut clock, |s| &mut s.events, &mut stats);
         stats.ticks += 1;
@@ -370,13 +415,13 @@ impl Stepper {
             w.statics.index.query(&aabb, &mut self.static_buf);
             for &s in &self.static_buf {
                 if w.config.classes.rule(b.class[i as usize], w.statics.class[s as usize]) != Rule::Ignore {
-                    self.candidates.push((i, Partner::Static(s)));
+                    self.candidates.push(Cand::new(i, Partner::Static(s)));
                 }
             }
         }
         if let Some(t) = &w.statics.terrain {
             if t.field.aabb().overlaps(&aabb) && w.config.classes.rule(b.class[i as usize], t.class) != Rule::Ignore {
-                self.candidates.push((i, Partner::Terrain));
+                self.candidates.push(Cand::new(i, Partner::Terrain));
             }
         }
     }
@@ -417,6 +462,99 @@ impl Stepper {
     }
 
     /// The first contact of body `a` with `p` in `[from, 1]`, if any.
+    /// Whether neither body's path changed since `imp` was computed.
+    fn is_current(&self, imp: &Impact) -> bool {
+        let ver_b = match imp.b {
+            Partner::Body(j) => self.version[j as usize],
+            _ => 0,
+        };
+        imp.ver_a == self.version[imp.a as usize] && imp.ver_b == ver_b
+    }
+
+    /// The time from which a stale impact must be searched again: the later path change.
+    fn search_from(&self, imp: &Impact) -> f64 {
+        match imp.b {
+            Partner::Body(j) => self.t0[imp.a as usize].max(self.t0[j as usize]),
+            _ => self.t0[imp.a as usize],
+        }
+    }
+
+    fn class_pair(&self, w: &World, a: u32, p: Partner) -> (ClassId, ClassId) {
+        let ca = w.bodies.class[a as usize];
+        let cb = match p {
+            Partner::Body(j) => w.bodies.class[j as usize],
+            Partner::Static(s) => w.statics.class[s as usize],
+            Partner::Terrain => w.statics.terrain.as_ref().map_or(ca, |t| t.class),
+        };
+        (ca, cb)
+    }
+
+    fn is_trigger(&self, w: &World, imp: &Impact) -> bool {
+        let (ca, cb) = self.class_pair(w, imp.a, imp.b);
+        matches!(w.config.classes.rule(ca, cb), Rule::Trigger | Rule::Ignore)
+    }
+
+    /// Contact at the end of the step on the current paths, within the slop.
+    fn end_contact(&self, w: &World, a: u32, p: Partner) -> Option<Contact> {
+        let pa = self.pos_at(w, a as usize, 1.0);
+        let (pb, _) = self.partner_at(w, p, 1.0);
+        self.contact(w, a as usize, pa, p, pb, w.config.contact_slop_m)
+    }
+
+    /// The fast path for two spheres at the start of a tick (the bulk of most scenes): start
+    /// overlap, the analytic time of impact and the end-of-step contact from one relative
+    /// position and displacement. `None` when the pair is not two spheres (or the plan says
+    /// no).
+    #[inline]
+    fn sphere_pair(&self, w: &World, a: u32, p: Partner) -> Option<(Option<Impact>, Option<Contact>)> {
+        if !self.plan.analytic_spheres {
+            return None;
+        }
+        let b = &w.bodies;
+        let i = a as usize;
+        let Shape::Sphere { radius: r1 } = b.shape[i] else { return None };
+        let (r2, pb, vb, ver_b) = match p {
+            Partner::Body(j) => match b.shape[j as usize] {
+                Shape::Sphere { radius } => (radius, b.pos[j as usize], b.vel[j as usize], 0),
+                _ => return None,
+            },
+            Partner::Static(s) => match w.statics.shape[s as usize] {
+                Shape::Sphere { radius } => (radius, w.statics.pos[s as usize], DVec3::ZERO, 0),
+                _ => return None,
+            },
+            Partner::Terrain => return None,
+        };
+        let r = r1 + r2;
+        let d0 = pb - b.pos[i];
+        let rel = (vb - b.vel[i]) * w.config.dt;
+        let d1 = d0 + rel;
+        let slop = w.config.contact_slop_m;
+        let end = if d1.length_squared() < (r + slop) * (r + slop) {
+            narrow::sphere_sphere::contact(r1, r2, d1)
+        } else {
+            None
+        };
+        let mk = |t: f64, contact: Contact, started_inside: bool| Impact {
+            t,
+            a,
+            b: p,
+            ver_a: 0,
+            ver_b,
+            contact,
+            started_inside,
+        };
+        let imp = if d0.length_squared() < r * r {
+            narrow::sphere_sphere::contact(r1, r2, d0).map(|c| mk(0.0, c, true))
+        } else {
+            match swept_sphere(-d0, -rel, r) {
+                SweptSphere::Hit(s) => narrow::sphere_sphere::contact(r1, r2, d0 + rel * s)
+                    .map(|c| mk(s, Contact { depth: c.depth.max(0.0), ..c }, false)),
+                _ => None,
+            }
+        };
+        Some((imp, end))
+    }
+
     fn impact(&self, w: &World, a: u32, p: Partner, from: f64, tests: &mut u32) -> Option<Impact> {
         let i = a as usize;
         let b = &w.bodies;
@@ -493,7 +631,9 @@ impl Stepper {
 
     /// Applies the response for one impact. Returns the bodies whose paths changed.
     fn resolve(&mut self, w: &mut World, imp: &Impact) -> [Option<u32>; 2] {
-        let cfg = w.config.clone();
+        // The settings are shared (`Arc`); hold them through a second handle only where a
+        // body's path changes, not for every recorded trigger.
+        let classes = &w.config.classes;
         let i = imp.a as usize;
         let t = imp.t;
         let (class_b, id_b, inv_mb) = match imp.b {
@@ -505,7 +645,7 @@ impl Stepper {
             }
         };
         let class_a = w.bodies.class[i];
-        let rule = cfg.classes.rule(class_a, class_b);
+        let rule = classes.rule(class_a, class_b);
         let pa = self.pos_at(w, i, t);
         let (pb, vb) = self.partner_at(w, imp.b, t);
         let va = w.bodies.vel[i];
@@ -523,6 +663,10 @@ impl Stepper {
             response,
         });
         let mut changed = [None, None];
+        if matches!(rule, Rule::Ignore | Rule::Trigger) {
+            return changed;
+        }
+        let cfg = w.config.clone();
         let j = match imp.b {
             Partner::Body(j) => Some(j as usize),
             _ => None,
@@ -688,7 +832,7 @@ impl Stepper {
             let (lo, hi) = (body.min(j), body.max(j));
             let from = t.max(self.t0[j as usize]);
             if let Some(imp) = self.impact(w, lo, Partner::Body(hi), from, tests) {
-                self.heap.push(imp);
+                self.schedule(w, imp);
             }
         }
         self.query_buf = buf;
@@ -700,9 +844,9 @@ impl Stepper {
             self.static_candidates(w, body);
             self.aabbs[i] = saved;
             for k in before..self.candidates.len() {
-                let (a, p) = self.candidates[k];
+                let Cand { a, b: p, .. } = self.candidates[k];
                 if let Some(imp) = self.impact(w, a, p, t, tests) {
-                    self.heap.push(imp);
+                    self.schedule(w, imp);
                 }
             }
         }
@@ -710,8 +854,17 @@ impl Stepper {
         for &j in &self.query_buf {
             if j != body && !self.dead[j as usize] {
                 let (lo, hi) = (body.min(j), body.max(j));
-                self.candidates.push((lo, Partner::Body(hi)));
+                self.candidates.push(Cand::new(lo, Partner::Body(hi)));
             }
+        }
+    }
+
+    /// Queues an impact: triggers aside (they change no path), the rest on the heap.
+    fn schedule(&mut self, w: &World, imp: Impact) {
+        if self.is_trigger(w, &imp) {
+            self.triggers.push(imp);
+        } else {
+            self.heap.push(imp);
         }
     }
 
@@ -722,12 +875,14 @@ impl Stepper {
         let slop = cfg.contact_slop_m;
         let tick = w.tick;
         let b = &w.bodies;
-        // Touching at the end: every candidate pair still alive, within the slop.
-        self.candidates.sort_unstable();
-        self.candidates.dedup();
+        // Touching at the end: every candidate pair still alive, within the slop. A pair whose
+        // paths never changed reuses the end contact found with its time of impact. (Pairs
+        // found twice mid-step give duplicate entries, removed below.)
         self.touching_now.clear();
-        let mut end_records: Vec<PairRecord> = Vec::new();
-        for &(a, p) in &self.candidates {
+        let mut end_records = std::mem::take(&mut self.end_records);
+        end_records.clear();
+        for cand in &self.candidates {
+            let (a, p) = (cand.a, cand.b);
             let i = a as usize;
             if self.dead[i] || matches!(p, Partner::Body(j) if self.dead[j as usize]) {
                 continue;
@@ -746,9 +901,11 @@ impl Stepper {
                 Partner::Static(s) => w.statics.pos[s as usize],
                 Partner::Terrain => DVec3::ZERO,
             };
-            if let Some(c) = self.contact(w, i, pa, p, pb, slop) {
-                let key = ordered(b.id[i], id_b);
-                self.touching_now.push(key);
+            let unchanged = cand.end_valid
+                && self.version[i] == 0
+                && !matches!(p, Partner::Body(j) if self.version[j as usize] != 0);
+            let end = if unchanged { cand.end } else { self.contact(w, i, pa, p, pb, slop) };
+            if let Some(c) = end {
                 let vb = match p {
                     Partner::Body(j) => b.vel[j as usize],
                     _ => DVec3::ZERO,
@@ -764,69 +921,64 @@ impl Stepper {
                 });
             }
         }
-        // Resting pairs were not candidates: they keep touching while both ends stay put.
-        let still = |id: EntityId, dead: &[bool], moving: &[bool]| match b.slot(id) {
-            Some(s) => !dead[s] && !moving[s],
+        // Three sorted lists, walked together by pair key: P, the pairs touching before; E, the
+        // pairs touching now that were tested (`end_records`); R, this tick's impacts (the
+        // first per pair). A linear merge instead of a lookup per pair keeps this stage O(n).
+        let key_of = |r: &PairRecord| ordered(r.key.0, r.key.1);
+        end_records.sort_unstable_by_key(key_of);
+        end_records.dedup_by(|x, y| key_of(x) == key_of(y));
+        self.records.sort_by(|x, y| key_of(x).cmp(&key_of(y)).then(x.t.total_cmp(&y.t)));
+        self.records.dedup_by(|x, y| key_of(x) == key_of(y)); // keeps the earliest impact
+                                                              // Resting pairs were not candidates: they keep touching while both ends stay put.
+        let still = |id: EntityId| match b.slot(id) {
+            Some(s) => !self.dead[s] && !self.moving[s],
             None => true, // static or terrain
         };
-        for &(x, y) in &w.touching {
-            if still(x, &self.dead, &self.moving) && still(y, &self.dead, &self.moving) {
-                self.touching_now.push((x, y));
-            }
-        }
-        self.touching_now.sort_unstable();
-        self.touching_now.dedup();
-
-        // Impacts: the first one per pair.
-        self.records
-            .sort_by(|p, q| ordered(p.key.0, p.key.1).cmp(&ordered(q.key.0, q.key.1)).then(p.t.total_cmp(&q.t)));
         let prev = &w.touching;
-        let was = |k: (EntityId, EntityId)| prev.binary_search(&k).is_ok();
-        let now = |k: (EntityId, EntityId)| self.touching_now.binary_search(&k).is_ok();
-        let mut last_key = None;
-        for r in &self.records {
-            let key = ordered(r.key.0, r.key.1);
-            if last_key == Some(key) {
-                continue;
+        let (mut ip, mut ie, mut ir) = (0, 0, 0);
+        loop {
+            let kp = prev.get(ip).copied();
+            let ke = end_records.get(ie).map(key_of);
+            let kr = self.records.get(ir).map(key_of);
+            let Some(key) = [kp, ke, kr].into_iter().flatten().min() else { break };
+            let was = kp == Some(key);
+            let tested = ke == Some(key);
+            let impact = if kr == Some(key) { Some(self.records[ir]) } else { None };
+            let end = if tested { Some(end_records[ie]) } else { None };
+            let now = tested || (was && impact.is_none() && still(key.0) && still(key.1));
+            if now {
+                self.touching_now.push(key);
             }
-            last_key = Some(key);
-            if !was(key) {
-                out.events.push(event(tick, r, Phase::Begin));
-                if !now(key) {
-                    out.events.push(event(tick, r, Phase::End));
+            match (was, impact) {
+                (false, Some(r)) => {
+                    // A new contact: it begins at its time of impact, and ends in the same tick
+                    // if the pair bounced apart.
+                    out.events.push(event(tick, &r, Phase::Begin));
+                    if !now {
+                        out.events.push(event(tick, &r, Phase::End));
+                    }
                 }
-            } else if r.response == Response::Destroy {
-                out.events.push(event(tick, r, Phase::End));
-            }
-        }
-        let impacted = |k: (EntityId, EntityId)| {
-            self.records.binary_search_by(|r| ordered(r.key.0, r.key.1).cmp(&k).then(Ordering::Greater)).unwrap_err()
-        };
-        // Touching now without an impact this tick (slid or grew into contact): a begin at the
-        // end of the step.
-        for r in &end_records {
-            let key = ordered(r.key.0, r.key.1);
-            let i = impacted(key);
-            let had_impact = self.records.get(i).is_some_and(|x| ordered(x.key.0, x.key.1) == key);
-            if !was(key) && !had_impact {
-                out.events.push(event(tick, r, Phase::Begin));
-            }
-        }
-        // Touching before, not now, and no impact already closed it: an end.
-        for &key in prev.iter() {
-            if now(key) {
-                continue;
-            }
-            let i = impacted(key);
-            if self.records.get(i).is_some_and(|x| ordered(x.key.0, x.key.1) == key) {
-                // Its impact this tick emitted the end if the pair separated (destroy or bounce).
-                let r = self.records[i];
-                if r.response != Response::Destroy {
-                    out.events.push(event(tick, &r, Phase::End));
+                (false, None) => {
+                    if let Some(e) = end {
+                        // Touching now with no impact (slid or grew into contact).
+                        out.events.push(event(tick, &e, Phase::Begin));
+                    }
                 }
-                continue;
+                (true, Some(r)) => {
+                    // A continuing contact: only its end is news (destroyed, or bounced apart).
+                    if r.response == Response::Destroy || !now {
+                        out.events.push(event(tick, &r, Phase::End));
+                    }
+                }
+                (true, None) => {
+                    if !now {
+                        out.events.push(end_without_contact(w, tick, key, &self.dead));
+                    }
+                }
             }
-            out.events.push(end_without_contact(w, tick, key, &self.dead));
+            ip += usize::from(was);
+            ie += usize::from(tested);
+            ir += usize::from(impact.is_some());
         }
         out.events.sort_by(|x, y| {
             x.toi.total_cmp(&y.toi).then(x.a.cmp(&y.a)).then(x.b.cmp(&y.b)).then(x.phase.cmp(&y.phase))
@@ -834,6 +986,7 @@ impl Stepper {
         out.events.dedup_by(|x, y| x.key() == y.key());
         w.touching.clear();
         w.touching.extend_from_slice(&self.touching_now);
+        self.end_records = end_records;
     }
 }
 

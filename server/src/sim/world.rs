@@ -183,8 +183,13 @@ pub struct Bodies {
     pub class: Vec<ClassId>,
     /// Shapes.
     pub shape: Vec<Shape>,
-    /// Bounding radius of each shape, m (sizes the broadphase).
+    /// Bounding radius of each shape, m.
     pub radius: Vec<f64>,
+    /// World-frame bounds of each shape relative to its position (lower corner), m. Fixed,
+    /// because orientations are.
+    pub aabb_lo: Vec<DVec3>,
+    /// Upper corner of the same, m.
+    pub aabb_hi: Vec<DVec3>,
     /// Centre positions, world frame, m.
     pub pos: Vec<DVec3>,
     /// Velocities, m/s.
@@ -238,6 +243,9 @@ impl Bodies {
         self.id.push(id);
         self.class.push(b.class);
         self.radius.push(b.shape.bounding_radius());
+        let bounds = b.shape.world_aabb(DVec3::ZERO, b.rot);
+        self.aabb_lo.push(bounds.min);
+        self.aabb_hi.push(bounds.max);
         self.shape.push(b.shape);
         self.pos.push(b.pos);
         self.vel.push(b.vel);
@@ -260,6 +268,8 @@ impl Bodies {
         keep(&mut self.class, dead);
         keep(&mut self.shape, dead);
         keep(&mut self.radius, dead);
+        keep(&mut self.aabb_lo, dead);
+        keep(&mut self.aabb_hi, dead);
         keep(&mut self.pos, dead);
         keep(&mut self.vel, dead);
         keep(&mut self.rot, dead);

@@ -86,6 +86,12 @@ fn run_impact(world: &World, plan: Plan, warmup: u32, ticks: u32) -> Measured {
         for (name, d) in stepper.stats.stages() {
             eprintln!("    {name:<12} {:>9.4} ms/tick", d.as_secs_f64() * 1e3 / f64::from(warmup + ticks));
         }
+        {
+            eprintln!(
+                "    last tick: {} pairs tested, {} resolved, {} toi tests",
+                stepper.stats.pairs_tested, stepper.stats.resolutions, stepper.stats.toi_tests
+            );
+        }
     }
     Measured { ms: median_ms(&mut samples), pairs: w.touching.len() }
 }
