@@ -245,3 +245,58 @@ fn corridor_script_fires_rays_that_hit_and_destroy() {
     assert_eq!(hits.iter().filter(|h| h.response == Response::Trigger).count(), 2);
     assert_eq!(report.skipped, 0);
 }
+
+#[test]
+fn general_shapes_land_on_a_mesh_floor() {
+    // A sphere, a capsule, a box, an ellipsoid and a convex hull dropped onto a static triangle
+    // mesh: the mesh kernel (parry's BVH to the triangles, then per-triangle kernels) must stop
+    // each of them on the surface, none through it.
+    let text = r#"
+[world]
+name = "mesh"
+gravity = [0.0, -9.81, 0.0]
+default_response = "stop"
+[[class]]
+name = "thing"
+[[class]]
+name = "floor"
+static = true
+[[body]]
+class = "floor"
+shape = { type = "mesh", vertices = [[-20, 0, -20], [20, 0, -20], [20, 0, 20], [-20, 0, 20]], triangles = [[0, 2, 1], [0, 3, 2]] }
+position = [0.0, 0.0, 0.0]
+[[body]]
+class = "thing"
+shape = { type = "sphere", radius_m = 0.5 }
+position = [-8.0, 3.0, 0.0]
+[[body]]
+class = "thing"
+shape = { type = "capsule", half_height_m = 0.5, radius_m = 0.3 }
+position = [-4.0, 3.0, 0.0]
+[[body]]
+class = "thing"
+shape = { type = "cuboid", half_extents_m = [0.4, 0.3, 0.4] }
+position = [0.0, 3.0, 0.0]
+[[body]]
+class = "thing"
+shape = { type = "ellipsoid", radii_m = [0.6, 0.25, 0.4] }
+position = [4.0, 3.0, 0.0]
+[[body]]
+class = "thing"
+shape = { type = "convex", points = [[0, 0.5, 0], [0.5, -0.2, 0.3], [-0.5, -0.2, 0.3], [0, -0.2, -0.5]] }
+position = [8.0, 3.0, 0.0]
+"#;
+    let s = Scene::parse(text, "<mesh>").unwrap();
+    let w = run(s.world.clone(), 192, |w, _| {
+        for i in 0..w.bodies.len() {
+            let low = w.bodies.pos[i].y + w.bodies.aabb_lo[i].y;
+            assert!(low > -0.02, "body {} sank to {low}", w.bodies.id[i]);
+        }
+    });
+    // Everything came to rest on the floor: lowest point at the surface (within the
+    // resting tolerance of one tick of gravity).
+    for i in 0..w.bodies.len() {
+        let low = w.bodies.pos[i].y + w.bodies.aabb_lo[i].y;
+        assert!(low.abs() < 0.01, "body {} rests at {low}, expected 0", w.bodies.id[i]);
+    }
+}

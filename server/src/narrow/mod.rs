@@ -201,3 +201,24 @@ mod tests {
         }
     }
 }
+
+#[cfg(test)]
+mod ellipsoid_tests {
+    use super::*;
+
+    /// An ellipsoid with equal radii is a sphere: through GJK on its support function it must
+    /// agree with the analytic sphere kernels.
+    #[test]
+    fn a_round_ellipsoid_is_a_sphere() {
+        let e = Shape::Ellipsoid { radii: DVec3::splat(0.7) };
+        let s = Shape::Sphere { radius: 0.7 };
+        let b = Shape::Cuboid { half_extents: DVec3::new(1.0, 0.5, 2.0) };
+        let rot = DQuat::from_rotation_y(0.3);
+        for d in [DVec3::new(1.5, 0.2, 0.1), DVec3::new(0.3, 1.0, -0.4), DVec3::new(2.0, 1.0, 1.0)] {
+            let fast = contact(&s, DQuat::IDENTITY, &b, rot, d, 5.0).unwrap();
+            let gjk = contact(&e, DQuat::IDENTITY, &b, rot, d, 5.0).unwrap();
+            assert!((fast.depth - gjk.depth).abs() < 2e-3, "{fast:?} {gjk:?}");
+            assert!(fast.normal.dot(gjk.normal) > 0.999, "{fast:?} {gjk:?}");
+        }
+    }
+}

@@ -2,6 +2,7 @@
 //! `--json`, one JSON object per line for machines. Peers (rapier) run in the same process on
 //! the same scene, so ratios hold on a noisy shared machine where absolute times do not.
 
+mod plan;
 mod report;
 mod scale;
 
@@ -21,10 +22,14 @@ enum Suite {
     /// N moving spheres: impact's core against rapier's CollisionPipeline, and the plans and
     /// broadphases against each other.
     Scale(scale::ScaleArgs),
+    /// What the plan saves: an unused stage costs nothing, the sphere plan beats the general
+    /// path.
+    Plan(plan::PlanArgs),
 }
 
 fn main() -> Result<()> {
     match Args::parse().suite {
         Suite::Scale(a) => scale::run(&a),
+        Suite::Plan(a) => plan::run(&a),
     }
 }

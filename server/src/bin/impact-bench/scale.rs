@@ -4,7 +4,7 @@
 //! step, and the counts are checked equal. impact's response is `trigger`, so neither engine
 //! changes a velocity and the two stay on the same trajectories.
 
-use super::report::{json_line, median_ms, progress};
+use super::report::{json_line, median_ms, progress, svg_loglog, Series};
 use anyhow::{ensure, Result};
 use clap::Args;
 use impact_server::broadphase::BroadphaseKind;
@@ -35,6 +35,9 @@ pub struct ScaleArgs {
     /// Print JSON lines.
     #[arg(long)]
     json: bool,
+    /// Write a log-log plot of ms/tick against bodies here (SVG).
+    #[arg(long)]
+    svg: Option<std::path::PathBuf>,
 }
 
 /// The scale scene for `n` bodies.
@@ -144,6 +147,7 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
     println!("scale: moving spheres r = 0.5 m, one per 8 m^3, speeds up to 5 m/s, 64 Hz; median of {} ticks after {} warm-up", a.ticks, a.warmup);
     println!("{:>8} {:<22} {:>12} {:>10} {:>12}", "bodies", "engine", "ms/tick", "pairs", "vs rapier");
     let mut growth: Vec<(f64, f64)> = Vec::new();
+    let mut rapier_points: Vec<(f64, f64)> = Vec::new();
     for &n in &a.bodies {
         progress(&format!("{n} bodies: building"));
         let scene = scene(n)?;
@@ -172,6 +176,7 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
             );
         }
         if let Some(p) = &peer {
+            rapier_points.push((f64::from(n), p.ms));
             println!("{n:>8} {:<22} {:>12.4} {:>10} {:>12}", "rapier", p.ms, p.pairs, "1.0x");
             if a.json {
                 json_line(
@@ -226,6 +231,17 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
         let slope = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum::<f64>()
             / pts.iter().map(|p| (p.0 - mx).powi(2)).sum::<f64>();
         println!("growth exponent (ms ~ n^k, least squares): k = {slope:.2}");
+        if let Some(path) = &a.svg {
+            let mut series = vec![Series { name: "impact".into(), points: growth.clone() }];
+            if !rapier_points.is_empty() {
+                series.push(Series { name: "rapier".into(), points: rapier_points.clone() });
+            }
+            std::fs::write(
+                path,
+                svg_loglog("scale: moving spheres, 64 Hz", "bodies", "ms per tick (median)", &series),
+            )?;
+            println!("plot: {}", path.display());
+        }
         if a.json {
             json_line(&json!({"suite": "scale", "engine": "impact", "growth_exponent": slope}));
         }
