@@ -173,10 +173,11 @@ pub struct Terrain {
     pub field: HeightField,
 }
 
-/// Dynamic bodies, struct-of-arrays, sorted by ascending entity id (spawns append larger ids and
-/// removals keep the order), so iteration order is the id order and never a hash order.
+/// What a dynamic body keeps for its life: everything but position and velocity. Shared by
+/// every snapshot through an `Arc` and copied only when a body is added or removed, so a
+/// snapshot of the world costs two arrays, not eleven.
 #[derive(Clone, Debug, Default)]
-pub struct Bodies {
+pub struct BodyTable {
     /// Entity ids, strictly ascending.
     pub id: Vec<EntityId>,
     /// Classes.
@@ -190,16 +191,31 @@ pub struct Bodies {
     pub aabb_lo: Vec<DVec3>,
     /// Upper corner of the same, m.
     pub aabb_hi: Vec<DVec3>,
-    /// Centre positions, world frame, m.
-    pub pos: Vec<DVec3>,
-    /// Velocities, m/s.
-    pub vel: Vec<DVec3>,
     /// Fixed orientations.
     pub rot: Vec<DQuat>,
     /// Inverse masses, 1/kg (0 = immovable but not static: it can still be destroyed).
     pub inv_mass: Vec<f64>,
     /// Owning client, if any.
     pub owner: Vec<Option<ClientId>>,
+}
+
+/// Dynamic bodies, struct-of-arrays, sorted by ascending entity id (spawns append larger ids and
+/// removals keep the order), so iteration order is the id order and never a hash order. The
+/// per-body constants live in a shared [`BodyTable`] (reached through `Deref`: `bodies.id[i]`).
+#[derive(Clone, Debug, Default)]
+pub struct Bodies {
+    /// Centre positions, world frame, m.
+    pub pos: Vec<DVec3>,
+    /// Velocities, m/s.
+    pub vel: Vec<DVec3>,
+    table: Arc<BodyTable>,
+}
+
+impl std::ops::Deref for Bodies {
+    type Target = BodyTable;
+    fn deref(&self) -> &BodyTable {
+        &self.table
+    }
 }
 
 /// A body to add.
@@ -240,18 +256,19 @@ impl Bodies {
     /// Appends a body with an id larger than every existing one.
     pub fn push(&mut self, id: EntityId, b: NewBody) {
         assert!(self.id.last().is_none_or(|&last| last < id), "entity ids must ascend");
-        self.id.push(id);
-        self.class.push(b.class);
-        self.radius.push(b.shape.bounding_radius());
-        let bounds = b.shape.world_aabb(DVec3::ZERO, b.rot);
-        self.aabb_lo.push(bounds.min);
-        self.aabb_hi.push(bounds.max);
-        self.shape.push(b.shape);
         self.pos.push(b.pos);
         self.vel.push(b.vel);
-        self.rot.push(b.rot);
-        self.inv_mass.push(b.inv_mass);
-        self.owner.push(b.owner);
+        let t = Arc::make_mut(&mut self.table);
+        t.id.push(id);
+        t.class.push(b.class);
+        t.radius.push(b.shape.bounding_radius());
+        let bounds = b.shape.world_aabb(DVec3::ZERO, b.rot);
+        t.aabb_lo.push(bounds.min);
+        t.aabb_hi.push(bounds.max);
+        t.shape.push(b.shape);
+        t.rot.push(b.rot);
+        t.inv_mass.push(b.inv_mass);
+        t.owner.push(b.owner);
     }
 
     /// Removes the slots flagged in `dead`, keeping the order of the rest.
@@ -264,17 +281,23 @@ impl Bodies {
                 k
             });
         }
-        keep(&mut self.id, dead);
-        keep(&mut self.class, dead);
-        keep(&mut self.shape, dead);
-        keep(&mut self.radius, dead);
-        keep(&mut self.aabb_lo, dead);
-        keep(&mut self.aabb_hi, dead);
         keep(&mut self.pos, dead);
         keep(&mut self.vel, dead);
-        keep(&mut self.rot, dead);
-        keep(&mut self.inv_mass, dead);
-        keep(&mut self.owner, dead);
+        let t = Arc::make_mut(&mut self.table);
+        keep(&mut t.id, dead);
+        keep(&mut t.class, dead);
+        keep(&mut t.shape, dead);
+        keep(&mut t.radius, dead);
+        keep(&mut t.aabb_lo, dead);
+        keep(&mut t.aabb_hi, dead);
+        keep(&mut t.rot, dead);
+        keep(&mut t.inv_mass, dead);
+        keep(&mut t.owner, dead);
+    }
+
+    /// Whether two body sets share the same table (same bodies, same constants).
+    pub fn same_table(&self, other: &Bodies) -> bool {
+        Arc::ptr_eq(&self.table, &other.table)
     }
 }
 
