@@ -10,6 +10,7 @@ pub mod broadphase;
 pub mod narrow;
 pub mod offline;
 pub mod query;
+pub mod rollback;
 pub mod scene;
 pub mod sim;
 pub mod terrain;

@@ -1,0 +1,80 @@
+//! The bounded ring of past ticks: for each, the world at its start, the inputs applied at it
+//! and the events published for it. Its length never exceeds the window, so memory is fixed once
+//! it is full, however long the server runs.
+
+use crate::sim::{TickInput, World};
+use impact_protocol::{CollisionEvent, Tick};
+use std::collections::VecDeque;
+
+/// One past tick.
+#[derive(Debug, Clone)]
+pub struct Frame {
+    /// The tick.
+    pub tick: Tick,
+    /// The world at the start of the tick, before its inputs.
+    pub state: World,
+    /// The inputs applied at the tick.
+    pub inputs: Vec<TickInput>,
+    /// The tick's events as last published.
+    pub events: Vec<CollisionEvent>,
+    /// 0 when first published; +1 per correction.
+    pub revision: u32,
+}
+
+/// Frames for consecutive ticks, oldest first, at most `capacity` of them.
+#[derive(Debug)]
+pub struct History {
+    frames: VecDeque<Frame>,
+    capacity: usize,
+}
+
+impl History {
+    /// An empty ring holding at most `capacity` frames.
+    pub fn new(capacity: usize) -> History {
+        History { frames: VecDeque::with_capacity(capacity + 1), capacity: capacity.max(1) }
+    }
+
+    /// Appends the newest frame; returns the oldest one if the ring was full.
+    pub fn push(&mut self, frame: Frame) -> Option<Frame> {
+        debug_assert!(self.frames.back().is_none_or(|f| f.tick.next() == frame.tick), "frames must be consecutive");
+        self.frames.push_back(frame);
+        (self.frames.len() > self.capacity).then(|| self.frames.pop_front()).flatten()
+    }
+
+    /// The frame of `tick`, if it is in the ring.
+    pub fn get(&self, tick: Tick) -> Option<&Frame> {
+        let first = self.frames.front()?.tick.0;
+        self.frames.get(tick.0.checked_sub(first)? as usize)
+    }
+
+    /// The frame of `tick`, mutably.
+    pub fn get_mut(&mut self, tick: Tick) -> Option<&mut Frame> {
+        let first = self.frames.front()?.tick.0;
+        self.frames.get_mut(tick.0.checked_sub(first)? as usize)
+    }
+
+    /// The oldest tick held.
+    pub fn oldest(&self) -> Option<Tick> {
+        self.frames.front().map(|f| f.tick)
+    }
+
+    /// Number of frames held.
+    pub fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// Whether the ring is empty.
+    pub fn is_empty(&self) -> bool {
+        self.frames.is_empty()
+    }
+
+    /// The most frames it holds.
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+
+    /// Frames oldest first.
+    pub fn iter(&self) -> impl Iterator<Item = &Frame> {
+        self.frames.iter()
+    }
+}

@@ -1,0 +1,432 @@
+//! Rollback: inputs that arrive late are simulated as if they had arrived on time.
+//!
+//! A [`Session`] owns the present world and a bounded [`History`] of the last `W` ticks (the
+//! world at the start of each, its inputs, its published events). An input stamped with a past
+//! tick inside the window is inserted at that tick; at the next [`Session::advance`] the world is
+//! rewound to the earliest changed tick and re-simulated to the present, however many late inputs
+//! arrived. Each re-simulated tick's events are reconciled with what was published for it
+//! ([`reconcile`]): retracted, amended or added, with a new revision. A tick leaving the window is
+//! final, and its events are published as confirmed, exactly once.
+//!
+//! Because the core is deterministic, re-simulating a tick with the same inputs reproduces it
+//! bit for bit; the self-check mode verifies that every tick, like ggrs's `SyncTestSession`.
+//! Hitscan is lag-compensated for free: a ray is cast when its tick is (re-)simulated, against
+//! the world as it was at that tick.
+
+pub mod history;
+pub mod reconcile;
+pub mod selective;
+
+use crate::sim::input::{self, Skipped};
+use crate::sim::{Plan, Stepper, TickInput, TickOutput, World};
+use history::{Frame, History};
+use impact_protocol::{
+    ClientId, ClientInput, CollisionEvent, CorrectionBatch, EventBatch, EventStatus, RayResult, RejectReason, Tick,
+};
+use std::collections::{BTreeMap, BTreeSet};
+
+/// What to do with an input older than the window.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StalePolicy {
+    /// Refuse it with `stale` and the oldest tick still accepted.
+    Reject,
+    /// Apply it at the oldest tick still in the window.
+    Clamp,
+}
+
+/// Rollback settings.
+#[derive(Clone, Debug)]
+pub struct RollbackConfig {
+    /// Ticks of history (the window). Inputs older than `now - window` are stale.
+    pub window_ticks: u32,
+    /// How far ahead of `now` an input may be stamped.
+    pub lead_ticks: u32,
+    /// Stale inputs: reject or clamp.
+    pub stale: StalePolicy,
+    /// Self-check: re-simulate this many past ticks every tick and count desyncs (0: off).
+    pub self_check_ticks: u32,
+    /// Re-simulate only the bodies a late input can reach, when that is provably equal.
+    pub selective: bool,
+    /// Most inputs held for one tick (a bound on memory whatever clients send).
+    pub max_inputs_per_tick: usize,
+}
+
+impl RollbackConfig {
+    /// The settings a world's scene asks for.
+    pub fn for_world(w: &World) -> RollbackConfig {
+        RollbackConfig {
+            window_ticks: w.config.window_ticks,
+            lead_ticks: w.config.input_lead_ticks,
+            stale: StalePolicy::Reject,
+            self_check_ticks: 0,
+            selective: false,
+            max_inputs_per_tick: 4096,
+        }
+    }
+}
+
+/// Why an input was refused.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Refusal {
+    /// The reason the client receives.
+    pub reason: RejectReason,
+    /// Detail for humans.
+    pub detail: String,
+    /// The oldest tick accepted now (with `stale`).
+    pub oldest_tick: Option<Tick>,
+    /// The newest tick accepted now (with `future`).
+    pub newest_tick: Option<Tick>,
+}
+
+impl Refusal {
+    fn new(reason: RejectReason, detail: String) -> Refusal {
+        Refusal { reason, detail, oldest_tick: None, newest_tick: None }
+    }
+}
+
+/// What one [`Session::advance`] produced.
+#[derive(Clone, Debug, Default)]
+pub struct Advance {
+    /// The tick just simulated.
+    pub tick: Tick,
+    /// Its events (revision 0, provisional).
+    pub events: Vec<CollisionEvent>,
+    /// Corrections of earlier ticks, oldest first.
+    pub corrections: Vec<CorrectionBatch>,
+    /// The tick that left the window, with its final events.
+    pub confirmed: Option<EventBatch>,
+    /// Results of rays fired by inputs accepted since the last advance.
+    pub rays: Vec<RayResult>,
+    /// Inputs that could not apply when their tick was simulated.
+    pub skipped: Vec<Skipped>,
+    /// How many past ticks were re-simulated (0: no rollback).
+    pub rollback_depth: u32,
+}
+
+/// Counters since start.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RollbackStats {
+    /// Rollbacks performed.
+    pub rollbacks: u64,
+    /// Deepest rollback, ticks.
+    pub depth_max: u32,
+    /// Ticks re-simulated in total.
+    pub resimulated_ticks: u64,
+    /// Correction batches published.
+    pub corrections: u64,
+    /// Rollbacks done selectively.
+    pub selective_rollbacks: u64,
+    /// Self-check re-simulations run.
+    pub self_checks: u64,
+    /// Self-check re-simulations that did not reproduce the past exactly.
+    pub desyncs: u64,
+}
+
+/// A world with history: the authoritative simulation the runtime drives.
+#[derive(Debug)]
+pub struct Session {
+    stepper: Stepper,
+    world: World,
+    history: History,
+    future: BTreeMap<u32, Vec<TickInput>>,
+    seen: BTreeSet<(ClientId, u32)>,
+    seen_by_tick: BTreeMap<u32, Vec<(ClientId, u32)>>,
+    fresh: BTreeSet<(ClientId, u32)>,
+    dirty_from: Option<Tick>,
+    cfg: RollbackConfig,
+    out: TickOutput,
+    /// Counters.
+    pub stats: RollbackStats,
+    planted_desync: bool,
+}
+
+impl Session {
+    /// A session starting from `world`.
+    pub fn new(world: World, plan: Plan, cfg: RollbackConfig) -> Session {
+        let capacity = cfg.window_ticks.max(1) as usize;
+        Session {
+            stepper: Stepper::new(plan, true),
+            world,
+            history: History::new(capacity),
+            future: BTreeMap::new(),
+            seen: BTreeSet::new(),
+            seen_by_tick: BTreeMap::new(),
+            fresh: BTreeSet::new(),
+            dirty_from: None,
+            cfg,
+            out: TickOutput::default(),
+            stats: RollbackStats::default(),
+            planted_desync: false,
+        }
+    }
+
+    /// The next tick to simulate.
+    pub fn now(&self) -> Tick {
+        self.world.tick
+    }
+
+    /// The present world (at the start of [`Session::now`]).
+    pub fn world(&self) -> &World {
+        &self.world
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &RollbackConfig {
+        &self.cfg
+    }
+
+    /// The core's stage times and counters.
+    pub fn stepper(&self) -> &Stepper {
+        &self.stepper
+    }
+
+    /// The oldest tick an input may be stamped with now.
+    pub fn oldest_accepted(&self) -> Tick {
+        self.history.oldest().unwrap_or(self.world.tick)
+    }
+
+    /// The newest tick an input may be stamped with now.
+    pub fn newest_accepted(&self) -> Tick {
+        Tick(self.world.tick.0.saturating_add(self.cfg.lead_ticks))
+    }
+
+    /// The history frame of a past tick (its start state, inputs and events), if still held.
+    pub fn frame(&self, tick: Tick) -> Option<&Frame> {
+        self.history.get(tick)
+    }
+
+    /// The history ring.
+    pub fn history(&self) -> &History {
+        &self.history
+    }
+
+    /// Accepts an input for its tick (or refuses it with a reason the client receives). A past
+    /// tick is re-simulated at the next [`Session::advance`]. Returns the tick it will apply at.
+    pub fn submit(&mut self, input: ClientInput) -> Result<Tick, Refusal> {
+        let now = self.world.tick;
+        let oldest = self.oldest_accepted();
+        let newest = self.newest_accepted();
+        let mut tick = input.tick;
+        if tick < oldest {
+            match self.cfg.stale {
+                StalePolicy::Reject => {
+                    return Err(Refusal {
+                        oldest_tick: Some(oldest),
+                        ..Refusal::new(
+                            RejectReason::Stale,
+                            format!("tick {} is older than the rollback window (oldest accepted {oldest})", tick.0),
+                        )
+                    })
+                }
+                StalePolicy::Clamp => tick = oldest,
+            }
+        }
+        if tick > newest {
+            return Err(Refusal {
+                newest_tick: Some(newest),
+                ..Refusal::new(
+                    RejectReason::Future,
+                    format!("tick {} is more than {} ticks ahead of the server ({now})", tick.0, self.cfg.lead_ticks),
+                )
+            });
+        }
+        let id = (input.client, input.seq);
+        if self.seen.contains(&id) {
+            return Err(Refusal::new(
+                RejectReason::Duplicate,
+                format!("input {} of client {} was already accepted", input.seq, input.client),
+            ));
+        }
+        input::check(&self.world, input.client, &input.actions)
+            .map_err(|(reason, detail)| Refusal::new(reason, detail))?;
+        let entry = TickInput { client: input.client, seq: input.seq, actions: input.actions };
+        let held = if tick < now {
+            &mut self.history.get_mut(tick).expect("ticks in [oldest, now) are in the history").inputs
+        } else {
+            self.future.entry(tick.0).or_default()
+        };
+        if held.len() >= self.cfg.max_inputs_per_tick {
+            return Err(Refusal::new(
+                RejectReason::QueueFull,
+                format!("tick {} already holds {} inputs", tick.0, held.len()),
+            ));
+        }
+        held.push(entry);
+        if tick < now {
+            self.dirty_from = Some(self.dirty_from.map_or(tick, |d| d.min(tick)));
+        }
+        self.seen.insert(id);
+        self.seen_by_tick.entry(tick.0).or_default().push(id);
+        self.fresh.insert(id);
+        Ok(tick)
+    }
+
+    /// Simulates the next tick, after re-simulating from the earliest tick that received a late
+    /// input since the last call.
+    pub fn advance(&mut self) -> Advance {
+        let mut adv = Advance::default();
+        if let Some(from) = self.dirty_from.take() {
+            adv.rollback_depth = self.now().0 - from.0;
+            self.stats.rollbacks += 1;
+            self.stats.depth_max = self.stats.depth_max.max(adv.rollback_depth);
+            self.stats.resimulated_ticks += u64::from(adv.rollback_depth);
+            let done = self.cfg.selective && selective::resimulate(self, from, &mut adv);
+            if done {
+                self.stats.selective_rollbacks += 1;
+            } else {
+                self.resimulate(from, &mut adv);
+            }
+            self.stats.corrections += adv.corrections.len() as u64;
+        } else if self.cfg.self_check_ticks > 0 {
+            self.self_check();
+        }
+
+        // The present tick.
+        let tick = self.world.tick;
+        let inputs = self.future.remove(&tick.0).unwrap_or_default();
+        let state = self.world.clone();
+        self.stepper.step(&mut self.world, &inputs, &mut self.out);
+        adv.tick = tick;
+        adv.events = self.out.events.clone();
+        self.take_rays(&mut adv);
+        adv.skipped.extend(self.out.skipped.drain(..));
+        let frame = Frame { tick, state, inputs, events: adv.events.clone(), revision: 0 };
+        if let Some(old) = self.history.push(frame) {
+            let mut events = old.events;
+            for e in &mut events {
+                e.status = EventStatus::Confirmed;
+            }
+            adv.confirmed = Some(EventBatch { tick: old.tick, revision: old.revision, events });
+            // Its inputs can never be resent usefully: forget their ids.
+            let oldest = self.oldest_accepted().0;
+            while let Some((&t, _)) = self.seen_by_tick.first_key_value() {
+                if t >= oldest {
+                    break;
+                }
+                for id in self.seen_by_tick.remove(&t).unwrap_or_default() {
+                    self.seen.remove(&id);
+                }
+            }
+        }
+        self.fresh.clear();
+        adv
+    }
+
+    /// Ray results of inputs accepted since the last advance (older ones were answered when
+    /// first simulated; a re-simulation changes their hits through event corrections).
+    fn take_rays(&mut self, adv: &mut Advance) {
+        for r in self.out.rays.drain(..) {
+            if self.fresh.contains(&(r.client, r.seq)) {
+                adv.rays.push(r);
+            }
+        }
+    }
+
+    /// Full re-simulation from `from` to the present.
+    fn resimulate(&mut self, from: Tick, adv: &mut Advance) {
+        let now = self.world.tick;
+        let mut w = self.history.get(from).expect("rollback start is in the history").state.clone();
+        for k in from.0..now.0 {
+            let tick = Tick(k);
+            let frame = self.history.get(tick).expect("ticks in the window are held");
+            self.stepper.step(&mut w, &frame.inputs, &mut self.out);
+            let events = std::mem::take(&mut self.out.events);
+            self.take_rays(adv);
+            adv.skipped.extend(self.out.skipped.drain(..));
+            self.publish_resimulated(tick, events, adv);
+            if k + 1 < now.0 {
+                self.history.get_mut(Tick(k + 1)).expect("held").state = w.clone();
+            }
+        }
+        self.world = w;
+    }
+
+    /// Records a re-simulated tick's events, publishing a correction if they changed.
+    pub(crate) fn publish_resimulated(&mut self, tick: Tick, mut events: Vec<CollisionEvent>, adv: &mut Advance) {
+        let frame = self.history.get_mut(tick).expect("held");
+        let d = reconcile::diff(&frame.events, &events);
+        if d.is_empty() {
+            return;
+        }
+        frame.revision += 1;
+        let changed: BTreeSet<_> = d.amended.iter().chain(&d.added).map(CollisionEvent::key).collect();
+        let before: BTreeMap<_, _> = frame.events.iter().map(|e| (e.key(), e.status)).collect();
+        for e in &mut events {
+            e.status = if changed.contains(&e.key()) {
+                EventStatus::Corrected
+            } else {
+                before.get(&e.key()).copied().unwrap_or(EventStatus::Provisional)
+            };
+        }
+        let mark = |mut v: Vec<CollisionEvent>| {
+            for e in &mut v {
+                e.status = EventStatus::Corrected;
+            }
+            v
+        };
+        adv.corrections.push(CorrectionBatch {
+            tick,
+            revision: frame.revision,
+            retracted: d.retracted,
+            amended: mark(d.amended),
+            added: mark(d.added),
+        });
+        frame.events = events;
+    }
+
+    /// Self-check: re-simulate the last ticks with nothing changed and require the same states
+    /// and events, bit for bit.
+    fn self_check(&mut self) {
+        let now = self.world.tick.0;
+        let from = now.saturating_sub(self.cfg.self_check_ticks).max(self.oldest_accepted().0);
+        if from >= now {
+            return;
+        }
+        self.stats.self_checks += 1;
+        let mut w = self.history.get(Tick(from)).expect("held").state.clone();
+        if self.planted_desync {
+            // The planted fault for the negative test: one ulp on one body.
+            if let Some(v) = w.bodies.vel.first_mut() {
+                v.x = f64::from_bits(v.x.to_bits() ^ 1);
+            }
+        }
+        let mut ok = true;
+        for k in from..now {
+            let frame = self.history.get(Tick(k)).expect("held");
+            self.stepper.step(&mut w, &frame.inputs, &mut self.out);
+            if !reconcile::diff(&frame.events, &self.out.events).is_empty() {
+                ok = false;
+            }
+            let expect = if k + 1 < now {
+                self.history.get(Tick(k + 1)).map(|f| f.state.state_hash())
+            } else {
+                Some(self.world.state_hash())
+            };
+            if Some(w.state_hash()) != expect {
+                ok = false;
+            }
+        }
+        self.out.rays.clear();
+        self.out.skipped.clear();
+        if !ok {
+            self.stats.desyncs += 1;
+        }
+    }
+
+    /// Plants a non-determinism in the next self-checks (tests only: proves the check catches
+    /// one).
+    #[doc(hidden)]
+    pub fn plant_desync(&mut self) {
+        self.planted_desync = true;
+    }
+
+    /// Inputs remembered for duplicate detection (bounded by the window and the lead).
+    pub fn remembered_inputs(&self) -> usize {
+        self.seen.len()
+    }
+
+    /// Ticks holding future inputs (bounded by the lead).
+    pub fn future_ticks(&self) -> usize {
+        self.future.len()
+    }
+}
