@@ -289,7 +289,7 @@ impl Session {
         adv.tick = tick;
         adv.events = self.out.events.clone();
         self.take_rays(&mut adv);
-        adv.skipped.extend(self.out.skipped.drain(..));
+        adv.skipped.append(&mut self.out.skipped);
         let frame = Frame { tick, state, inputs, events: adv.events.clone(), revision: 0 };
         if let Some(old) = self.history.push(frame) {
             let mut events = old.events;
@@ -332,7 +332,7 @@ impl Session {
             self.stepper.step(&mut w, &frame.inputs, &mut self.out);
             let events = std::mem::take(&mut self.out.events);
             self.take_rays(adv);
-            adv.skipped.extend(self.out.skipped.drain(..));
+            adv.skipped.append(&mut self.out.skipped);
             self.publish_resimulated(tick, events, adv);
             if k + 1 < now.0 {
                 self.history.get_mut(Tick(k + 1)).expect("held").state = w.clone();

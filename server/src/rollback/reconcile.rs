@@ -46,8 +46,8 @@ pub fn differs(a: &CollisionEvent, b: &CollisionEvent) -> bool {
 pub fn diff(published: &[CollisionEvent], now: &[CollisionEvent]) -> Diff {
     let mut old: Vec<(Key, &CollisionEvent)> = published.iter().map(|e| (e.key(), e)).collect();
     let mut new: Vec<(Key, &CollisionEvent)> = now.iter().map(|e| (e.key(), e)).collect();
-    old.sort_by(|x, y| x.0.cmp(&y.0));
-    new.sort_by(|x, y| x.0.cmp(&y.0));
+    old.sort_by_key(|x| x.0);
+    new.sort_by_key(|x| x.0);
     let mut d = Diff::default();
     let (mut i, mut j) = (0, 0);
     while i < old.len() || j < new.len() {
