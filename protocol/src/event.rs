@@ -78,9 +78,12 @@ pub struct CollisionEvent {
     pub status: EventStatus,
 }
 
+/// An event's identity: `(tick, a, b, phase)`.
+pub type EventKey = (Tick, EntityId, EntityId, Phase);
+
 impl CollisionEvent {
     /// The identity corrections use: `(tick, a, b, phase)`.
-    pub fn key(&self) -> (Tick, EntityId, EntityId, Phase) {
+    pub fn key(&self) -> EventKey {
         (self.tick, self.a, self.b, self.phase)
     }
 }

@@ -22,7 +22,7 @@ pub mod validate;
 
 pub use codec::{decode, encode, Encoding};
 pub use error::ProtocolError;
-pub use event::{CollisionEvent, EventStatus, Phase, Response};
+pub use event::{CollisionEvent, EventKey, EventStatus, Phase, Response};
 pub use ids::{ClientId, EntityId, Tick, WorldId};
 pub use message::{
     Action, BodyState, ClientInput, ClientMessage, CorrectionBatch, EventBatch, EventHistory, InputAck, InputReject,

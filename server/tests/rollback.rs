@@ -4,7 +4,9 @@
 //! confirmed stream; hitscan is judged at the shooter's tick; memory stays fixed over a long run;
 //! and the self-check catches a planted non-determinism.
 
-use impact_protocol::{Action, ClientId, ClientInput, CollisionEvent, EntityId, EventBatch, Phase, RejectReason, Tick};
+use impact_protocol::{
+    Action, ClientId, ClientInput, CollisionEvent, EntityId, EventBatch, EventKey, Phase, RejectReason, Tick,
+};
 use impact_server::rollback::{RollbackConfig, Session, StalePolicy};
 use impact_server::scene::Scene;
 use impact_server::sim::Plan;
@@ -101,7 +103,7 @@ fn window_edges_stale_clamp_future_duplicate() {
 /// A client's view: events as published, then corrections applied by identity.
 #[derive(Default)]
 struct ClientView {
-    ticks: BTreeMap<Tick, BTreeMap<(Tick, EntityId, EntityId, Phase), CollisionEvent>>,
+    ticks: BTreeMap<Tick, BTreeMap<EventKey, CollisionEvent>>,
 }
 
 impl ClientView {

@@ -8,7 +8,7 @@
 //! tick, a point, depth or closing speed by more than a micrometre (per second), a normal by more
 //! than 1e-6 (about 0.2 arc-seconds), or a different response, is an amendment.
 
-use impact_protocol::{CollisionEvent, EntityId, Phase, Tick};
+use impact_protocol::{CollisionEvent, EventKey};
 
 /// What changed in one tick's events.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -28,8 +28,6 @@ impl Diff {
     }
 }
 
-type Key = (Tick, EntityId, EntityId, Phase);
-
 /// Whether two events with the same identity differ enough to publish an amendment.
 pub fn differs(a: &CollisionEvent, b: &CollisionEvent) -> bool {
     let far = |x: &[f64; 3], y: &[f64; 3], tol: f64| x.iter().zip(y).any(|(p, q)| (p - q).abs() > tol);
@@ -44,8 +42,8 @@ pub fn differs(a: &CollisionEvent, b: &CollisionEvent) -> bool {
 /// The difference between the events published for a tick and the events a re-simulation
 /// produced for it.
 pub fn diff(published: &[CollisionEvent], now: &[CollisionEvent]) -> Diff {
-    let mut old: Vec<(Key, &CollisionEvent)> = published.iter().map(|e| (e.key(), e)).collect();
-    let mut new: Vec<(Key, &CollisionEvent)> = now.iter().map(|e| (e.key(), e)).collect();
+    let mut old: Vec<(EventKey, &CollisionEvent)> = published.iter().map(|e| (e.key(), e)).collect();
+    let mut new: Vec<(EventKey, &CollisionEvent)> = now.iter().map(|e| (e.key(), e)).collect();
     old.sort_by_key(|x| x.0);
     new.sort_by_key(|x| x.0);
     let mut d = Diff::default();
