@@ -19,6 +19,14 @@ pub struct Frame {
     pub events: Vec<CollisionEvent>,
     /// 0 when first published; +1 per correction.
     pub revision: u32,
+    /// The box each body's path stayed within during the tick (by slot of `state`), for
+    /// selective re-simulation; empty when not kept.
+    pub paths: Vec<crate::sim::shape::Aabb>,
+    /// The tick hit the per-tick resolution cap (its outcome depends on every body: selective
+    /// re-simulation is not allowed through it).
+    pub capped: bool,
+    /// Contact resolutions the tick took (a bound for selective re-simulation's cap check).
+    pub resolutions: u32,
 }
 
 /// Frames for consecutive ticks, oldest first, at most `capacity` of them.

@@ -120,6 +120,8 @@ pub struct RollbackStats {
     pub self_checks: u64,
     /// Self-check re-simulations that did not reproduce the past exactly.
     pub desyncs: u64,
+    /// Wall time of the last rollback (rewind and re-simulation), for benchmarks.
+    pub last_rollback: std::time::Duration,
 }
 
 /// A world with history: the authoritative simulation the runtime drives.
@@ -270,12 +272,14 @@ impl Session {
             self.stats.rollbacks += 1;
             self.stats.depth_max = self.stats.depth_max.max(adv.rollback_depth);
             self.stats.resimulated_ticks += u64::from(adv.rollback_depth);
+            let started = std::time::Instant::now();
             let done = self.cfg.selective && selective::resimulate(self, from, &mut adv);
             if done {
                 self.stats.selective_rollbacks += 1;
             } else {
                 self.resimulate(from, &mut adv);
             }
+            self.stats.last_rollback = started.elapsed();
             self.stats.corrections += adv.corrections.len() as u64;
         } else if self.cfg.self_check_ticks > 0 {
             self.self_check();
@@ -285,12 +289,16 @@ impl Session {
         let tick = self.world.tick;
         let inputs = self.future.remove(&tick.0).unwrap_or_default();
         let state = self.world.clone();
+        let caps = self.stepper.stats.resolution_cap_hits;
         self.stepper.step(&mut self.world, &inputs, &mut self.out);
+        let capped = self.stepper.stats.resolution_cap_hits != caps;
+        let paths = if self.cfg.selective { self.stepper.last_paths().to_vec() } else { Vec::new() };
         adv.tick = tick;
         adv.events = self.out.events.clone();
         self.take_rays(&mut adv);
         adv.skipped.append(&mut self.out.skipped);
-        let frame = Frame { tick, state, inputs, events: adv.events.clone(), revision: 0 };
+        let resolutions = self.stepper.stats.resolutions;
+        let frame = Frame { tick, state, inputs, events: adv.events.clone(), revision: 0, paths, capped, resolutions };
         if let Some(old) = self.history.push(frame) {
             let mut events = old.events;
             for e in &mut events {
@@ -329,7 +337,18 @@ impl Session {
         for k in from.0..now.0 {
             let tick = Tick(k);
             let frame = self.history.get(tick).expect("ticks in the window are held");
+            let caps = self.stepper.stats.resolution_cap_hits;
             self.stepper.step(&mut w, &frame.inputs, &mut self.out);
+            let capped = self.stepper.stats.resolution_cap_hits != caps;
+            let selective = self.cfg.selective;
+            let resolutions = self.stepper.stats.resolutions;
+            let frame = self.history.get_mut(tick).expect("held");
+            frame.capped = capped;
+            frame.resolutions = resolutions;
+            if selective {
+                frame.paths.clear();
+                frame.paths.extend_from_slice(self.stepper.last_paths());
+            }
             let events = std::mem::take(&mut self.out.events);
             self.take_rays(adv);
             adv.skipped.append(&mut self.out.skipped);

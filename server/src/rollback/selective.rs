@@ -1,10 +1,240 @@
-//! Selective re-simulation (see resimulate).
+//! Selective re-simulation: re-simulate only the bodies a late input can reach.
+//!
+//! The reach set `R` starts with the entities the late inputs name. It grows, to a fixpoint,
+//! with every body whose path box (kept per tick in the history) overlapped the path box of a
+//! body in `R` at the same tick, and with the entities of any other input of the interval that
+//! names a body in `R` (a ray adds every body whose box its segment crosses). `R` is then
+//! re-simulated alone, with the static world, in a sub-world; the new paths are checked against
+//! the old path boxes of everything outside `R`, and any overlap grows `R` and starts again.
+//!
+//! At the fixpoint no body outside `R` came near a body in `R` in the old run or the new one, so
+//! bodies outside `R` follow exactly their recorded history and bodies in `R` exactly what a full
+//! re-simulation would give them: impacts resolve in (time, body, partner) order, and slot order
+//! is id order in the world and in the sub-world alike. What cannot be shown that way falls back
+//! to a full re-simulation: a spawn in the interval (entity ids are global), a reach set that is
+//! not small, a tick that hit (or could hit) the per-tick resolution cap, or a re-simulation that
+//! destroys a different set of bodies than before. `tests/selective.rs` checks equality with a
+//! full re-simulation on random scenes and late inputs.
 
 use super::{Advance, Session};
-use impact_protocol::Tick;
+use crate::rollback::history::Frame;
+use crate::sim::shape::Aabb;
+use crate::sim::{Stepper, TickInput, TickOutput, World};
+use glam::DVec3;
+use impact_protocol::{Action, CollisionEvent, EntityId, RayResult, Tick};
+use std::collections::BTreeSet;
 
-/// Re-simulates only what the late inputs can reach. Returns false when it cannot prove that
-/// equal to a full re-simulation; the caller then does the full one.
-pub fn resimulate(_s: &mut Session, _from: Tick, _adv: &mut Advance) -> bool {
-    false
+/// The entities an input acts on; a ray also reaches every body whose path box its segment
+/// crosses at that tick.
+fn entities(input: &TickInput, frame: &Frame, out: &mut BTreeSet<EntityId>) {
+    for a in &input.actions {
+        match a {
+            Action::SetVelocity { entity, .. } | Action::ApplyImpulse { entity, .. } | Action::Despawn { entity } => {
+                out.insert(*entity);
+            }
+            Action::FireRay { shooter, origin, direction, max_distance_m } => {
+                out.insert(*shooter);
+                let o = DVec3::from_array(*origin);
+                let end = o + DVec3::from_array(*direction).normalize_or_zero() * *max_distance_m;
+                let ray = Aabb { min: o.min(end), max: o.max(end) };
+                for (slot, p) in frame.paths.iter().enumerate() {
+                    if p.overlaps(&ray) {
+                        out.insert(frame.state.bodies.id[slot]);
+                    }
+                }
+            }
+            Action::SpawnProjectile { .. } => {}
+        }
+    }
+}
+
+/// Grows `reach` with the old run's neighbours and inputs, to a fixpoint.
+fn grow(s: &Session, from: Tick, now: Tick, reach: &mut BTreeSet<EntityId>) {
+    let mut scratch = BTreeSet::new();
+    loop {
+        let before = reach.len();
+        for k in from.0..now.0 {
+            let f = s.history.get(Tick(k)).expect("held");
+            for input in &f.inputs {
+                scratch.clear();
+                entities(input, f, &mut scratch);
+                if scratch.iter().any(|e| reach.contains(e)) {
+                    reach.extend(scratch.iter().copied());
+                }
+            }
+            let boxes: Vec<Aabb> =
+                reach.iter().filter_map(|id| f.state.bodies.slot(*id)).map(|slot| f.paths[slot]).collect();
+            let Some(hull) = boxes.iter().copied().reduce(|a, b| a.union(&b)) else { continue };
+            for (slot, p) in f.paths.iter().enumerate() {
+                if p.overlaps(&hull) && boxes.iter().any(|b| b.overlaps(p)) {
+                    reach.insert(f.state.bodies.id[slot]);
+                }
+            }
+        }
+        if reach.len() == before {
+            return;
+        }
+    }
+}
+
+/// `w` with only the dynamic bodies in `keep` (and contacts among them or with static
+/// geometry).
+fn subset(w: &World, keep: &BTreeSet<EntityId>) -> World {
+    let mut sub = w.clone();
+    let dead: Vec<bool> = w.bodies.id.iter().map(|id| !keep.contains(id)).collect();
+    sub.bodies.remove_flagged(&dead);
+    let dynamic_outside = |id: &EntityId| w.bodies.slot(*id).is_some() && !keep.contains(id);
+    sub.touching.retain(|(a, b)| !dynamic_outside(a) && !dynamic_outside(b));
+    sub
+}
+
+/// The re-simulated interval for the reach set: per tick, the events, the sub-world after the
+/// tick, and the path boxes (by sub-world slot at the tick's start).
+struct SubRun {
+    events: Vec<Vec<CollisionEvent>>,
+    after: Vec<World>,
+    paths: Vec<(Vec<EntityId>, Vec<Aabb>)>,
+    rays: Vec<RayResult>,
+    skipped: Vec<crate::sim::input::Skipped>,
+}
+
+fn simulate(s: &Session, from: Tick, now: Tick, reach: &BTreeSet<EntityId>) -> Option<SubRun> {
+    let mut w = subset(&s.history.get(from)?.state, reach);
+    let mut stepper = Stepper::new(s.stepper.plan().clone(), false);
+    let mut out = TickOutput::default();
+    let mut run =
+        SubRun { events: Vec::new(), after: Vec::new(), paths: Vec::new(), rays: Vec::new(), skipped: Vec::new() };
+    let cap = s.world.config.max_resolutions_per_tick;
+    let mut scratch = BTreeSet::new();
+    for k in from.0..now.0 {
+        let f = s.history.get(Tick(k))?;
+        let inputs: Vec<TickInput> = f
+            .inputs
+            .iter()
+            .filter(|i| {
+                scratch.clear();
+                entities(i, f, &mut scratch);
+                !scratch.is_empty() && scratch.iter().all(|e| reach.contains(e))
+            })
+            .cloned()
+            .collect();
+        let ids = w.bodies.id.clone();
+        stepper.step(&mut w, &inputs, &mut out);
+        // The full run's resolutions are at most the old run's plus the reach set's new ones.
+        if f.resolutions.saturating_add(stepper.stats.resolutions) >= cap {
+            return None;
+        }
+        // The reach set must live and die as before.
+        let next = s.history.get(Tick(k + 1)).map_or(&s.world, |n| &n.state);
+        let alive_before: Vec<EntityId> = next.bodies.id.iter().filter(|id| reach.contains(id)).copied().collect();
+        if alive_before != w.bodies.id {
+            return None;
+        }
+        run.events.push(std::mem::take(&mut out.events));
+        run.paths.push((ids, stepper.last_paths().to_vec()));
+        run.after.push(w.clone());
+        run.rays.append(&mut out.rays);
+        run.skipped.append(&mut out.skipped);
+    }
+    Some(run)
+}
+
+/// Bodies outside the reach set whose old path boxes the new paths cross.
+fn crossings(s: &Session, from: Tick, run: &SubRun, reach: &BTreeSet<EntityId>) -> BTreeSet<EntityId> {
+    let mut extra = BTreeSet::new();
+    for (n, (ids, boxes)) in run.paths.iter().enumerate() {
+        let f = s.history.get(Tick(from.0 + n as u32)).expect("held");
+        let Some(hull) = boxes.iter().copied().reduce(|a, b| a.union(&b)) else { continue };
+        for (slot, p) in f.paths.iter().enumerate() {
+            let id = f.state.bodies.id[slot];
+            if !reach.contains(&id) && p.overlaps(&hull) && boxes.iter().any(|b| b.overlaps(p)) {
+                extra.insert(id);
+            }
+        }
+        debug_assert_eq!(ids.len(), boxes.len());
+    }
+    extra
+}
+
+/// Writes the reach set's new states into the world `w` (bodies outside it keep theirs).
+fn patch(w: &mut World, sub: &World, reach: &BTreeSet<EntityId>) {
+    for (k, id) in sub.bodies.id.iter().enumerate() {
+        let slot = w.bodies.slot(*id).expect("alive sets were checked equal");
+        w.bodies.pos[slot] = sub.bodies.pos[k];
+        w.bodies.vel[slot] = sub.bodies.vel[k];
+    }
+    let dynamic_in = |id: &EntityId| reach.contains(id);
+    w.touching.retain(|(a, b)| !dynamic_in(a) && !dynamic_in(b));
+    w.touching.extend(sub.touching.iter().copied());
+    w.touching.sort_unstable();
+    w.touching.dedup();
+}
+
+/// Re-simulates only what the late inputs can reach. Returns false (having changed nothing)
+/// when that cannot be shown equal to a full re-simulation; the caller then does the full one.
+pub fn resimulate(s: &mut Session, from: Tick, adv: &mut Advance) -> bool {
+    let now = s.world.tick;
+    let mut reach = BTreeSet::new();
+    for k in from.0..now.0 {
+        let Some(f) = s.history.get(Tick(k)) else { return false };
+        if f.capped || f.paths.len() != f.state.bodies.len() {
+            return false;
+        }
+        for input in &f.inputs {
+            if input.actions.iter().any(|a| matches!(a, Action::SpawnProjectile { .. })) {
+                return false;
+            }
+            if s.fresh.contains(&(input.client, input.seq)) {
+                entities(input, f, &mut reach);
+            }
+        }
+    }
+    if reach.is_empty() {
+        return false;
+    }
+    let limit = (s.world.bodies.len() / 4).max(8);
+    let run = loop {
+        grow(s, from, now, &mut reach);
+        if reach.len() > limit {
+            return false;
+        }
+        let Some(run) = simulate(s, from, now, &reach) else { return false };
+        let extra = crossings(s, from, &run, &reach);
+        if extra.is_empty() {
+            break run;
+        }
+        reach.extend(extra);
+    };
+    // Merge: events, states, path boxes, tick by tick.
+    let in_reach = |e: &CollisionEvent| reach.contains(&e.a) || reach.contains(&e.b);
+    for (n, k) in (from.0..now.0).enumerate() {
+        let tick = Tick(k);
+        let old = &s.history.get(tick).expect("held").events;
+        let mut events: Vec<CollisionEvent> = old.iter().filter(|e| !in_reach(e)).cloned().collect();
+        events.extend(run.events[n].iter().cloned());
+        events.sort_by(|x, y| {
+            x.toi.total_cmp(&y.toi).then(x.a.cmp(&y.a)).then(x.b.cmp(&y.b)).then(x.phase.cmp(&y.phase))
+        });
+        s.publish_resimulated(tick, events, adv);
+        let (ids, boxes) = &run.paths[n];
+        let f = s.history.get_mut(tick).expect("held");
+        for (id, b) in ids.iter().zip(boxes) {
+            if let Some(slot) = f.state.bodies.slot(*id) {
+                f.paths[slot] = *b;
+            }
+        }
+        if k + 1 < now.0 {
+            let next = s.history.get_mut(Tick(k + 1)).expect("held");
+            patch(&mut next.state, &run.after[n], &reach);
+        } else {
+            patch(&mut s.world, &run.after[n], &reach);
+        }
+    }
+    for r in run.rays {
+        if s.fresh.contains(&(r.client, r.seq)) {
+            adv.rays.push(r);
+        }
+    }
+    adv.skipped.extend(run.skipped);
+    true
 }

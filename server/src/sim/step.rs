@@ -212,6 +212,13 @@ impl Stepper {
         }
     }
 
+    /// The box each body's path stayed within during the last tick, by slot of the world as it
+    /// was at that tick's start (swept bounds, grown wherever a path changed mid-step).
+    /// Rollback keeps them to find what a late input can reach.
+    pub fn last_paths(&self) -> &[Aabb] {
+        &self.aabbs
+    }
+
     /// The plan in use.
     pub fn plan(&self) -> &Plan {
         &self.plan
