@@ -122,6 +122,10 @@ pub struct RollbackStats {
     pub desyncs: u64,
     /// Wall time of the last rollback (rewind and re-simulation), for benchmarks.
     pub last_rollback: std::time::Duration,
+    /// Total wall time spent taking the per-tick snapshot (the history's copy of the world).
+    pub snapshot_time: std::time::Duration,
+    /// Ticks advanced.
+    pub ticks: u64,
 }
 
 /// A world with history: the authoritative simulation the runtime drives.
@@ -288,7 +292,10 @@ impl Session {
         // The present tick.
         let tick = self.world.tick;
         let inputs = self.future.remove(&tick.0).unwrap_or_default();
+        let snap = std::time::Instant::now();
         let state = self.world.clone();
+        self.stats.snapshot_time += snap.elapsed();
+        self.stats.ticks += 1;
         let caps = self.stepper.stats.resolution_cap_hits;
         self.stepper.step(&mut self.world, &inputs, &mut self.out);
         let capped = self.stepper.stats.resolution_cap_hits != caps;

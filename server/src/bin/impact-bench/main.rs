@@ -4,6 +4,7 @@
 
 mod plan;
 mod report;
+mod rollback;
 mod scale;
 
 use anyhow::Result;
@@ -25,11 +26,14 @@ enum Suite {
     /// What the plan saves: an unused stage costs nothing, the sphere plan beats the general
     /// path.
     Plan(plan::PlanArgs),
+    /// The cost of a rollback of depth d against the plain tick, full and selective.
+    Rollback(rollback::RollbackArgs),
 }
 
 fn main() -> Result<()> {
     match Args::parse().suite {
         Suite::Scale(a) => scale::run(&a),
         Suite::Plan(a) => plan::run(&a),
+        Suite::Rollback(a) => rollback::run(&a),
     }
 }

@@ -42,8 +42,13 @@ pub struct ScaleArgs {
 
 /// The scale scene for `n` bodies.
 pub fn scene(n: u32) -> Result<Scene> {
+    Ok(Scene::parse(&scene_text(n), "<scale>")?)
+}
+
+/// The scale scene's TOML for `n` bodies.
+pub fn scene_text(n: u32) -> String {
     let side = (8.0 * f64::from(n)).cbrt();
-    let text = format!(
+    format!(
         r#"
 [world]
 name = "scale"
@@ -64,8 +69,7 @@ max = [{side}, {side}, {side}]
 speed_mps = [0.0, 5.0]
 seed = 1
 "#
-    );
-    Ok(Scene::parse(&text, "<scale>")?)
+    )
 }
 
 struct Measured {
