@@ -11,6 +11,7 @@ pub mod narrow;
 pub mod offline;
 pub mod query;
 pub mod rollback;
+pub mod runtime;
 pub mod scene;
 pub mod sim;
 pub mod terrain;

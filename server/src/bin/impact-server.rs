@@ -3,11 +3,15 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
+use impact_protocol::{Encoding, WorldId};
 use impact_server::offline;
+use impact_server::rollback::{RollbackConfig, StalePolicy};
+use impact_server::runtime::{self, ServerOptions};
 use impact_server::scene::Scene;
 use impact_server::sim::Plan;
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Instant;
 
 /// impact: an authoritative collision server for multiplayer games.
@@ -35,13 +39,70 @@ struct Args {
     /// Use the general path (GJK for every pair, no analytic kernels): for comparisons.
     #[arg(long)]
     general: bool,
+    /// Zenoh endpoints to listen on (repeatable).
+    #[arg(long, default_value = "tcp/127.0.0.1:7447")]
+    listen: Vec<String>,
+    /// Zenoh endpoints to connect to, e.g. a router (repeatable).
+    #[arg(long)]
+    connect: Vec<String>,
+    /// A Zenoh configuration file (JSON5) for anything else (a router, other transports).
+    #[arg(long)]
+    zenoh_config: Option<PathBuf>,
+    /// World name (the `{world}` key segment); default: the scene's.
+    #[arg(long)]
+    world: Option<String>,
+    /// Ticks per second; default: the scene's.
+    #[arg(long)]
+    tick_hz: Option<u32>,
+    /// Rollback window in milliseconds; default: the scene's (250).
+    #[arg(long)]
+    rollback_ms: Option<u32>,
+    /// Encoding of broadcast messages.
+    #[arg(long, default_value = "msgpack")]
+    encoding: Encoding,
+    /// Stale inputs: reject them, or clamp them to the oldest tick in the window.
+    #[arg(long, default_value = "reject", value_parser = ["reject", "clamp"])]
+    stale: String,
+    /// Re-simulate only what a late input can reach (proven equal to a full re-simulation).
+    #[arg(long)]
+    selective: bool,
+    /// Self-check: re-simulate this many past ticks every tick and count desyncs.
+    #[arg(long, default_value_t = 0)]
+    self_check: u32,
+    /// Inputs per second one client may send.
+    #[arg(long, default_value_t = 120)]
+    rate_limit: u32,
+    /// Stop after this many ticks (network mode).
+    #[arg(long)]
+    max_ticks: Option<u64>,
+    /// No per-second status line.
+    #[arg(long)]
+    quiet: bool,
 }
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let scene = Scene::load(&args.scene).map_err(anyhow::Error::msg)?;
+    let mut scene = Scene::load(&args.scene).map_err(anyhow::Error::msg)?;
+    if let Some(name) = &args.world {
+        scene.name = WorldId::new(name.clone()).map_err(anyhow::Error::msg)?;
+    }
+    if args.tick_hz.is_some() || args.rollback_ms.is_some() {
+        let cfg = Arc::make_mut(&mut scene.world.config);
+        if let Some(hz) = args.tick_hz {
+            if !(1..=1000).contains(&hz) {
+                bail!("--tick-hz {hz} must be in 1..=1000");
+            }
+            let ms = cfg.window_ticks as f64 * 1000.0 / cfg.tick_hz as f64;
+            cfg.tick_hz = hz;
+            cfg.dt = 1.0 / f64::from(hz);
+            cfg.window_ticks = (ms * f64::from(hz) / 1000.0).ceil() as u32;
+        }
+        if let Some(ms) = args.rollback_ms {
+            cfg.window_ticks = ((u64::from(ms) * u64::from(cfg.tick_hz)).div_ceil(1000)) as u32;
+        }
+    }
     if !args.offline {
-        bail!("the network runtime is not built yet: run with --offline (see README.md)");
+        return serve(scene, &args);
     }
     let plan = if args.general { Plan::general(&scene.world) } else { Plan::for_world(&scene.world) };
     println!(
@@ -106,5 +167,48 @@ fn main() -> Result<()> {
         f.flush()?;
     }
     offline::print_summary(&report, &mut std::io::stdout().lock())?;
+    Ok(())
+}
+
+fn serve(scene: Scene, args: &Args) -> Result<()> {
+    let plan = Plan::for_world(&scene.world);
+    let mut rollback = RollbackConfig::for_world(&scene.world);
+    rollback.selective = args.selective;
+    rollback.self_check_ticks = args.self_check;
+    rollback.stale = if args.stale == "clamp" { StalePolicy::Clamp } else { StalePolicy::Reject };
+    let cfg = &scene.world.config;
+    println!(
+        "impact-server: world {} ({}), {} dynamic and {} static bodies, {} Hz, rollback window {} ticks",
+        scene.name,
+        args.scene.display(),
+        scene.world.bodies.len(),
+        scene.world.statics.id.len(),
+        cfg.tick_hz,
+        cfg.window_ticks
+    );
+    println!("{plan}");
+    let opts = ServerOptions {
+        listen: if args.zenoh_config.is_some() && args.listen == ["tcp/127.0.0.1:7447"] {
+            Vec::new()
+        } else {
+            args.listen.clone()
+        },
+        connect: args.connect.clone(),
+        zenoh_config: args.zenoh_config.clone(),
+        encoding: args.encoding,
+        rollback: Some(rollback),
+        inputs_per_client_per_s: args.rate_limit,
+        max_ticks: args.max_ticks,
+        verbose: !args.quiet,
+        ..ServerOptions::default()
+    };
+    let world = scene.name.clone();
+    let mut handle = runtime::start(scene, opts.clone())?;
+    println!("listening on {} as impact/v1/{world}/...  (Ctrl-C to stop)", opts.listen.join(", "));
+    let stop = handle.stop_flag();
+    ctrlc::set_handler(move || stop.store(true, std::sync::atomic::Ordering::SeqCst))
+        .context("installing the Ctrl-C handler")?;
+    let summary = handle.join();
+    println!("stopped: final confirmed events published\n{summary}");
     Ok(())
 }

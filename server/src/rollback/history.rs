@@ -15,6 +15,8 @@ pub struct Frame {
     pub state: World,
     /// The inputs applied at the tick.
     pub inputs: Vec<TickInput>,
+    /// The server's own actions at the tick (avatars joining and leaving).
+    pub system: Vec<crate::sim::SystemAction>,
     /// The tick's events as last published.
     pub events: Vec<CollisionEvent>,
     /// 0 when first published; +1 per correction.

@@ -18,7 +18,7 @@ pub mod reconcile;
 pub mod selective;
 
 use crate::sim::input::{self, Skipped};
-use crate::sim::{Plan, Stepper, TickInput, TickOutput, World};
+use crate::sim::{Plan, Stepper, SystemAction, TickInput, TickOutput, World};
 use history::{Frame, History};
 use impact_protocol::{
     ClientId, ClientInput, CollisionEvent, CorrectionBatch, EventBatch, EventStatus, RayResult, RejectReason, Tick,
@@ -101,6 +101,8 @@ pub struct Advance {
     pub skipped: Vec<Skipped>,
     /// How many past ticks were re-simulated (0: no rollback).
     pub rollback_depth: u32,
+    /// Avatars spawned at this tick: `(owner, entity)`.
+    pub spawned: Vec<(ClientId, impact_protocol::EntityId)>,
 }
 
 /// Counters since start.
@@ -135,6 +137,7 @@ pub struct Session {
     world: World,
     history: History,
     future: BTreeMap<u32, Vec<TickInput>>,
+    system: Vec<SystemAction>,
     seen: BTreeSet<(ClientId, u32)>,
     seen_by_tick: BTreeMap<u32, Vec<(ClientId, u32)>>,
     fresh: BTreeSet<(ClientId, u32)>,
@@ -155,6 +158,7 @@ impl Session {
             world,
             history: History::new(capacity),
             future: BTreeMap::new(),
+            system: Vec::new(),
             seen: BTreeSet::new(),
             seen_by_tick: BTreeMap::new(),
             fresh: BTreeSet::new(),
@@ -204,6 +208,27 @@ impl Session {
     /// The history ring.
     pub fn history(&self) -> &History {
         &self.history
+    }
+
+    /// Queues a server action for the next tick (avatars joining or leaving).
+    pub fn submit_system(&mut self, action: SystemAction) {
+        self.system.push(action);
+    }
+
+    /// Publishes every tick still in the window as confirmed (the server is stopping: nothing
+    /// can change them any more). Oldest first.
+    pub fn finish(&mut self) -> Vec<EventBatch> {
+        let mut out = Vec::new();
+        let ticks: Vec<Tick> = self.history.iter().map(|f| f.tick).collect();
+        for t in ticks {
+            let f = self.history.get(t).expect("held");
+            let mut events = f.events.clone();
+            for e in &mut events {
+                e.status = EventStatus::Confirmed;
+            }
+            out.push(EventBatch { tick: t, revision: f.revision, events });
+        }
+        out
     }
 
     /// Accepts an input for its tick (or refuses it with a reason the client receives). A past
@@ -292,20 +317,23 @@ impl Session {
         // The present tick.
         let tick = self.world.tick;
         let inputs = self.future.remove(&tick.0).unwrap_or_default();
+        let system = std::mem::take(&mut self.system);
         let snap = std::time::Instant::now();
         let state = self.world.clone();
         self.stats.snapshot_time += snap.elapsed();
         self.stats.ticks += 1;
         let caps = self.stepper.stats.resolution_cap_hits;
-        self.stepper.step(&mut self.world, &inputs, &mut self.out);
+        self.stepper.step_with(&mut self.world, &system, &inputs, &mut self.out);
         let capped = self.stepper.stats.resolution_cap_hits != caps;
+        adv.spawned.append(&mut self.out.spawned);
         let paths = if self.cfg.selective { self.stepper.last_paths().to_vec() } else { Vec::new() };
         adv.tick = tick;
         adv.events = self.out.events.clone();
         self.take_rays(&mut adv);
         adv.skipped.append(&mut self.out.skipped);
         let resolutions = self.stepper.stats.resolutions;
-        let frame = Frame { tick, state, inputs, events: adv.events.clone(), revision: 0, paths, capped, resolutions };
+        let frame =
+            Frame { tick, state, inputs, system, events: adv.events.clone(), revision: 0, paths, capped, resolutions };
         if let Some(old) = self.history.push(frame) {
             let mut events = old.events;
             for e in &mut events {
@@ -345,7 +373,8 @@ impl Session {
             let tick = Tick(k);
             let frame = self.history.get(tick).expect("ticks in the window are held");
             let caps = self.stepper.stats.resolution_cap_hits;
-            self.stepper.step(&mut w, &frame.inputs, &mut self.out);
+            self.stepper.step_with(&mut w, &frame.system, &frame.inputs, &mut self.out);
+            self.out.spawned.clear();
             let capped = self.stepper.stats.resolution_cap_hits != caps;
             let selective = self.cfg.selective;
             let resolutions = self.stepper.stats.resolutions;
@@ -419,7 +448,7 @@ impl Session {
         let mut ok = true;
         for k in from..now {
             let frame = self.history.get(Tick(k)).expect("held");
-            self.stepper.step(&mut w, &frame.inputs, &mut self.out);
+            self.stepper.step_with(&mut w, &frame.system, &frame.inputs, &mut self.out);
             if !reconcile::diff(&frame.events, &self.out.events).is_empty() {
                 ok = false;
             }

@@ -119,7 +119,7 @@ fn simulate(s: &Session, from: Tick, now: Tick, reach: &BTreeSet<EntityId>) -> O
             .cloned()
             .collect();
         let ids = w.bodies.id.clone();
-        stepper.step(&mut w, &inputs, &mut out);
+        stepper.step_with(&mut w, &f.system, &inputs, &mut out);
         // The full run's resolutions are at most the old run's plus the reach set's new ones.
         if f.resolutions.saturating_add(stepper.stats.resolutions) >= cap {
             return None;
@@ -177,7 +177,7 @@ pub fn resimulate(s: &mut Session, from: Tick, adv: &mut Advance) -> bool {
     let mut reach = BTreeSet::new();
     for k in from.0..now.0 {
         let Some(f) = s.history.get(Tick(k)) else { return false };
-        if f.capped || f.paths.len() != f.state.bodies.len() {
+        if f.capped || f.paths.len() != f.state.bodies.len() || !f.system.is_empty() {
             return false;
         }
         for input in &f.inputs {

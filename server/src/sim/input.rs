@@ -25,6 +25,62 @@ pub struct TickInput {
     pub actions: Vec<Action>,
 }
 
+/// A change the server itself makes at a tick (not a client input): avatars appearing and
+/// leaving. Kept in the history with the tick's inputs, so a re-simulation makes the same
+/// change at the same tick.
+#[derive(Clone, Debug)]
+pub enum SystemAction {
+    /// Spawn an avatar owned by `client`.
+    SpawnAvatar {
+        /// The owner.
+        client: ClientId,
+        /// Class.
+        class: crate::sim::world::ClassId,
+        /// Shape.
+        shape: Shape,
+        /// Position, m.
+        pos: DVec3,
+    },
+    /// Remove a body.
+    Remove {
+        /// The body.
+        entity: EntityId,
+    },
+}
+
+/// Applies the tick's system actions, in order, before any client input.
+pub fn apply_system(w: &mut World, system: &[SystemAction], out: &mut TickOutput) {
+    let mut removed = Vec::new();
+    for a in system {
+        match a {
+            SystemAction::SpawnAvatar { client, class, shape, pos } => {
+                let props = &w.config.classes.props[class.0 as usize];
+                let inv_mass = 1.0 / (props.density_kg_m3 * shape.volume());
+                let body = NewBody {
+                    class: *class,
+                    shape: shape.clone(),
+                    pos: *pos,
+                    vel: DVec3::ZERO,
+                    rot: DQuat::IDENTITY,
+                    inv_mass,
+                    owner: Some(*client),
+                };
+                if let Some(id) = w.spawn(body) {
+                    out.spawned.push((*client, id));
+                }
+            }
+            SystemAction::Remove { entity } => {
+                if w.bodies.slot(*entity).is_some() {
+                    removed.push(*entity);
+                }
+            }
+        }
+    }
+    if !removed.is_empty() {
+        remove(w, &removed, out);
+    }
+}
+
 /// An input that did not apply.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Skipped {

@@ -8,7 +8,7 @@ pub mod shape;
 pub mod step;
 pub mod world;
 
-pub use input::TickInput;
+pub use input::{SystemAction, TickInput};
 pub use plan::Plan;
 pub use step::{StageStats, Stepper, TickOutput};
 pub use world::World;

@@ -88,6 +88,8 @@ pub struct TickOutput {
     pub rays: Vec<RayResult>,
     /// Inputs (or actions) that could not apply, with why: `(client, seq, reason)`.
     pub skipped: Vec<input::Skipped>,
+    /// Avatars spawned by system actions this tick: `(owner, entity)`.
+    pub spawned: Vec<(impact_protocol::ClientId, EntityId)>,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -235,13 +237,27 @@ impl Stepper {
     /// Advances `w` by one tick with `inputs` (any order: they are applied sorted by client and
     /// sequence number). Events and ray results go to `out` (cleared first).
     pub fn step(&mut self, w: &mut World, inputs: &[TickInput], out: &mut TickOutput) {
+        self.step_with(w, &[], inputs, out);
+    }
+
+    /// [`Stepper::step`] with the server's own actions for the tick, applied first.
+    pub fn step_with(
+        &mut self,
+        w: &mut World,
+        system: &[input::SystemAction],
+        inputs: &[TickInput],
+        out: &mut TickOutput,
+    ) {
         out.events.clear();
         out.rays.clear();
         out.skipped.clear();
+        out.spawned.clear();
         let mut stats = std::mem::take(&mut self.stats);
         let mut clock = self.profile.then(Instant::now);
 
-        // 1. Inputs, then hitscan against the world as it stands at the start of the tick.
+        // 1. The server's actions, then inputs, then hitscan against the world as it stands at
+        //    the start of the tick.
+        input::apply_system(w, system, out);
         input::apply(w, inputs, out);
         self.lap(&mut clock, |s| &mut s.inputs, &mut stats);
 

@@ -1,0 +1,25 @@
+//! The network runtime: the authoritative server on Zenoh.
+//!
+//! ```text
+//!  zenoh callbacks (decode, validate)  ──try_send──▶ ingress queue (bounded)
+//!  liveliness, queries                 ──try_send──▶ control / query queues (bounded)
+//!                                                        │
+//!                       tick thread (owns the rollback Session, fixed schedule)
+//!                                                        │ try_send
+//!                                                        ▼
+//!                         egress queue (bounded) ──▶ egress thread ──▶ zenoh put / reply
+//! ```
+//!
+//! One thread owns the world and steps it on a deadline schedule. Zenoh's callbacks never touch
+//! the world: they decode, validate and enqueue, and a full queue drops the input with a
+//! `queue_full` reject rather than wait. Nothing the tick thread sends can block it: it hands
+//! messages to the egress thread through a bounded queue (full: dropped and counted), and the
+//! egress thread publishes with congestion control `Drop`, so a subscriber that stops reading
+//! costs only its own messages.
+
+mod egress;
+mod server;
+mod session;
+
+pub use server::{start, RuntimeError, ServerHandle, ServerOptions, Summary};
+pub use session::zenoh_config;

@@ -1,0 +1,855 @@
+//! The server: Zenoh declarations, the tick thread, and shutdown.
+
+use super::egress::{self, Out};
+use crate::rollback::{RollbackConfig, Session};
+use crate::scene::{avatar_position, AvatarRule, Scene};
+use crate::sim::{Plan, SystemAction};
+use impact_protocol::limits::MAX_CLIENT_MESSAGE_BYTES;
+use impact_protocol::{
+    decode, encode, keys, ClientId, ClientInput, ClientMessage, CollisionEvent, Encoding, EntityId, EventBatch,
+    EventHistory, InputAck, InputReject, QueryError, RejectReason, ServerMessage, ServerStats, Tick, Welcome, WorldId,
+};
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+use zenoh::Wait;
+
+/// Why the server could not start or run.
+#[derive(Debug, thiserror::Error)]
+pub enum RuntimeError {
+    /// The Zenoh configuration is invalid.
+    #[error("zenoh configuration: {0}")]
+    Config(String),
+    /// Zenoh refused a session or a declaration.
+    #[error("zenoh: {0}")]
+    Zenoh(String),
+    /// A thread could not be started.
+    #[error("thread: {0}")]
+    Thread(String),
+}
+
+/// How to run the server.
+#[derive(Clone, Debug)]
+pub struct ServerOptions {
+    /// Endpoints to listen on (default `tcp/127.0.0.1:7447`).
+    pub listen: Vec<String>,
+    /// Endpoints (routers or peers) to connect to.
+    pub connect: Vec<String>,
+    /// A Zenoh configuration file, for anything the flags do not cover.
+    pub zenoh_config: Option<PathBuf>,
+    /// Encoding of broadcast messages (replies follow the request's encoding).
+    pub encoding: Encoding,
+    /// Rollback settings (window, lead, stale policy, self-check, selective).
+    pub rollback: Option<RollbackConfig>,
+    /// Inputs the ingress queue holds between ticks.
+    pub ingress_capacity: usize,
+    /// Messages the egress queue holds.
+    pub egress_capacity: usize,
+    /// Inputs per second one client may send (token bucket, burst of one second's worth).
+    pub inputs_per_client_per_s: u32,
+    /// Ticks an avatar outlives its client's presence token.
+    pub grace_ticks: u32,
+    /// Most clients with avatars at once.
+    pub max_clients: usize,
+    /// Stop after this many ticks (tests, benchmarks); `None` runs until stopped.
+    pub max_ticks: Option<u64>,
+    /// Print a line per second to stderr.
+    pub verbose: bool,
+}
+
+impl Default for ServerOptions {
+    fn default() -> Self {
+        ServerOptions {
+            listen: vec!["tcp/127.0.0.1:7447".into()],
+            connect: Vec::new(),
+            zenoh_config: None,
+            encoding: Encoding::MsgPack,
+            rollback: None,
+            ingress_capacity: 16_384,
+            egress_capacity: 65_536,
+            inputs_per_client_per_s: 120,
+            grace_ticks: 128,
+            max_clients: 10_000,
+            max_ticks: None,
+            verbose: false,
+        }
+    }
+}
+
+/// What a run did, printed at shutdown.
+#[derive(Clone, Debug, Default)]
+pub struct Summary {
+    /// Ticks simulated.
+    pub ticks: u64,
+    /// Ticks that missed their deadline.
+    pub overruns: u64,
+    /// Longest tick, ms.
+    pub tick_ms_max: f64,
+    /// Median tick, ms (over the whole run).
+    pub tick_ms_p50: f64,
+    /// 99th percentile tick, ms.
+    pub tick_ms_p99: f64,
+    /// Inputs accepted.
+    pub inputs_accepted: u64,
+    /// Inputs rejected, by reason.
+    pub inputs_rejected: BTreeMap<String, u64>,
+    /// Inputs that reached the tick thread but were dropped inside the server (never: kept to
+    /// prove it).
+    pub inputs_lost: u64,
+    /// Events published (provisional).
+    pub events: u64,
+    /// Correction batches published.
+    pub corrections: u64,
+    /// Messages the egress queue had to drop.
+    pub egress_dropped: u64,
+    /// Rollbacks and the deepest.
+    pub rollbacks: u64,
+    /// Deepest rollback, ticks.
+    pub rollback_depth_max: u32,
+    /// Clients seen.
+    pub clients: u64,
+}
+
+impl std::fmt::Display for Summary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "ticks {} (overruns {}), tick ms p50 {:.3} p99 {:.3} max {:.3}",
+            self.ticks, self.overruns, self.tick_ms_p50, self.tick_ms_p99, self.tick_ms_max
+        )?;
+        writeln!(
+            f,
+            "clients {}, inputs accepted {}, lost inside the server {}",
+            self.clients, self.inputs_accepted, self.inputs_lost
+        )?;
+        let rejected: Vec<String> = self.inputs_rejected.iter().map(|(k, v)| format!("{k} {v}")).collect();
+        writeln!(f, "inputs rejected: {}", if rejected.is_empty() { "none".into() } else { rejected.join(", ") })?;
+        writeln!(
+            f,
+            "events {}, correction batches {}, rollbacks {} (deepest {} ticks)",
+            self.events, self.corrections, self.rollbacks, self.rollback_depth_max
+        )?;
+        write!(f, "egress messages dropped {}", self.egress_dropped)
+    }
+}
+
+/// A running server.
+#[derive(Debug)]
+pub struct ServerHandle {
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<Summary>>,
+    /// The world's name.
+    pub world: WorldId,
+}
+
+impl ServerHandle {
+    /// Asks the server to stop after the current tick and waits for its summary.
+    pub fn stop(mut self) -> Summary {
+        self.stop.store(true, Ordering::SeqCst);
+        self.join()
+    }
+
+    /// Waits for the server to stop by itself (`max_ticks`) or by the stop flag.
+    pub fn join(&mut self) -> Summary {
+        self.thread.take().map(|t| t.join().unwrap_or_default()).unwrap_or_default()
+    }
+
+    /// The flag that stops the server (for a Ctrl-C handler).
+    pub fn stop_flag(&self) -> Arc<AtomicBool> {
+        self.stop.clone()
+    }
+}
+
+impl Drop for ServerHandle {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+enum Control {
+    Join(ClientId),
+    Leave(ClientId),
+}
+
+struct Ingress {
+    input: ClientInput,
+    encoding: Encoding,
+}
+
+struct ClientState {
+    avatar: Option<EntityId>,
+    present: bool,
+    leave_at: Option<u32>,
+    tokens: f64,
+    encoding: Encoding,
+}
+
+/// Counters shared with the callbacks.
+#[derive(Default)]
+struct Shared {
+    rejected_in_callbacks: [AtomicU64; RejectReason::ALL.len()],
+    egress_dropped: AtomicU64,
+    egress_failed: AtomicU64,
+}
+
+fn reason_index(r: RejectReason) -> usize {
+    RejectReason::ALL.iter().position(|x| *x == r).unwrap_or(0)
+}
+
+/// Sends a message through the bounded egress queue; a full queue drops it and counts.
+fn send(tx: &SyncSender<Out>, shared: &Shared, key: String, msg: &ServerMessage, encoding: Encoding) {
+    let Ok(bytes) = encode(msg, encoding) else {
+        shared.egress_failed.fetch_add(1, Ordering::Relaxed);
+        return;
+    };
+    if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) = tx.try_send(Out::Put { key, bytes, encoding }) {
+        shared.egress_dropped.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+fn reject(client: ClientId, seq: u32, tick: Tick, reason: RejectReason, detail: String) -> ServerMessage {
+    ServerMessage::Reject(InputReject { client, seq, tick, reason, detail, oldest_tick: None, newest_tick: None })
+}
+
+/// Starts the server on `scene` and returns at once; the tick thread runs until stopped.
+pub fn start(scene: Scene, opts: ServerOptions) -> Result<ServerHandle, RuntimeError> {
+    let config = super::zenoh_config(opts.zenoh_config.as_deref(), &opts.listen, &opts.connect)?;
+    let zs = zenoh::open(config).wait().map_err(|e| RuntimeError::Zenoh(format!("opening the session: {e}")))?;
+    let world_id = scene.name.clone();
+    let shared = Arc::new(Shared::default());
+    let (egress_tx, egress_rx) = sync_channel::<Out>(opts.egress_capacity);
+    let (ingress_tx, ingress_rx) = sync_channel::<Ingress>(opts.ingress_capacity);
+    let (control_tx, control_rx) = sync_channel::<Control>(opts.max_clients.max(16) * 2);
+    let (query_tx, query_rx) = sync_channel::<zenoh::query::Query>(256);
+
+    // Inputs: decode and validate in the callback, enqueue, never block.
+    let input_sub = {
+        let tx = ingress_tx;
+        let etx = egress_tx.clone();
+        let shared = shared.clone();
+        let default_enc = opts.encoding;
+        zs.declare_subscriber(keys::INPUT.any_client(&world_id))
+            .callback(move |sample| {
+                let key = sample.key_expr().as_str().to_string();
+                let from_key = keys::INPUT.parse(&key).ok().and_then(|(_, c)| c);
+                let tag = sample.encoding().to_string();
+                let encoding = Encoding::from_zenoh_tag(&tag).unwrap_or(default_enc);
+                let bytes = sample.payload().to_bytes();
+                let refuse = |client: ClientId, seq: u32, tick: Tick, reason: RejectReason, detail: String| {
+                    shared.rejected_in_callbacks[reason_index(reason)].fetch_add(1, Ordering::Relaxed);
+                    let key = keys::CLIENT_ACK.key(&world_of(&key), Some(client));
+                    send(&etx, &shared, key, &reject(client, seq, tick, reason, detail), encoding);
+                };
+                let Some(client) = from_key else {
+                    return; // not a key of ours: nobody to answer
+                };
+                if Encoding::from_zenoh_tag(&tag).is_none() && !tag.is_empty() && tag != "zenoh/bytes" {
+                    return refuse(
+                        client,
+                        0,
+                        Tick(0),
+                        RejectReason::Malformed,
+                        format!("unknown encoding {tag:?}: use application/msgpack or application/json"),
+                    );
+                }
+                match decode::<ClientMessage>(&bytes, encoding, MAX_CLIENT_MESSAGE_BYTES) {
+                    Err(e) => refuse(client, 0, Tick(0), e.reject_reason(), e.to_string()),
+                    Ok(ClientMessage::Input(input)) => {
+                        if input.client != client {
+                            return refuse(
+                                client,
+                                input.seq,
+                                input.tick,
+                                RejectReason::NotOwner,
+                                format!("input names client {} but was sent on client {client}'s key", input.client),
+                            );
+                        }
+                        let (seq, tick) = (input.seq, input.tick);
+                        if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) =
+                            tx.try_send(Ingress { input, encoding })
+                        {
+                            refuse(
+                                client,
+                                seq,
+                                tick,
+                                RejectReason::QueueFull,
+                                "the server's ingress queue is full; resend later".into(),
+                            );
+                        }
+                    }
+                }
+            })
+            .wait()
+            .map_err(|e| RuntimeError::Zenoh(format!("declaring the input subscriber: {e}")))?
+    };
+    fn world_of(key: &str) -> WorldId {
+        keys::INPUT.parse(key).map(|(w, _)| w).unwrap_or_else(|_| WorldId::new("unknown").expect("valid name"))
+    }
+
+    // Presence.
+    let presence_sub = {
+        let tx = control_tx;
+        zs.liveliness()
+            .declare_subscriber(keys::PRESENCE.any_client(&world_id))
+            .history(true)
+            .callback(move |sample| {
+                if let Ok((_, Some(client))) = keys::PRESENCE.parse(sample.key_expr().as_str()) {
+                    let c = match sample.kind() {
+                        zenoh::sample::SampleKind::Put => Control::Join(client),
+                        zenoh::sample::SampleKind::Delete => Control::Leave(client),
+                    };
+                    let _ = tx.try_send(c);
+                }
+            })
+            .wait()
+            .map_err(|e| RuntimeError::Zenoh(format!("declaring the presence subscriber: {e}")))?
+    };
+
+    // Queries: answered by the tick thread (it owns the history), replied by the egress thread.
+    let mut queryables = Vec::new();
+    for pattern in [keys::QUERY_STATE, keys::QUERY_HISTORY] {
+        let tx = query_tx.clone();
+        let q = zs
+            .declare_queryable(pattern.key(&world_id, None))
+            .callback(move |query| {
+                let _ = tx.try_send(query);
+            })
+            .wait()
+            .map_err(|e| RuntimeError::Zenoh(format!("declaring a queryable: {e}")))?;
+        queryables.push(q);
+    }
+
+    let egress_session = zs.clone();
+    let egress_failures = Arc::new(AtomicU64::new(0));
+    let ef = egress_failures.clone();
+    let egress_thread = std::thread::Builder::new()
+        .name("impact-egress".into())
+        .spawn(move || egress::run(egress_session, egress_rx, ef))
+        .map_err(|e| RuntimeError::Thread(e.to_string()))?;
+
+    let stop = Arc::new(AtomicBool::new(false));
+    let stop2 = stop.clone();
+    let world_name = world_id.clone();
+    let thread = std::thread::Builder::new()
+        .name("impact-tick".into())
+        .spawn(move || {
+            let mut t = TickLoop::new(scene, opts, world_name, egress_tx, shared);
+            let summary = t.run(&stop2, ingress_rx, control_rx, query_rx);
+            // Undeclare the callbacks (they hold senders of the egress queue), then drop the
+            // tick loop's sender: the queue closes, the egress thread drains it and ends.
+            drop((input_sub, presence_sub, queryables));
+            drop(t);
+            let _ = egress_thread.join();
+            let _ = zs.close().wait();
+            summary
+        })
+        .map_err(|e| RuntimeError::Thread(e.to_string()))?;
+    Ok(ServerHandle { stop, thread: Some(thread), world: world_id })
+}
+
+struct TickLoop {
+    session: Session,
+    opts: ServerOptions,
+    world: WorldId,
+    avatar: Option<AvatarRule>,
+    egress: SyncSender<Out>,
+    shared: Arc<Shared>,
+    clients: BTreeMap<ClientId, ClientState>,
+    summary: Summary,
+    tick_times: Vec<f64>,
+    all_tick_times: hdr::Histogram,
+    period_events: u64,
+    period_rollbacks: u32,
+    period_depth: u32,
+    period_queue_max: u32,
+}
+
+/// A fixed-bucket histogram of tick durations (0.01 ms buckets up to 100 ms), so a long run's
+/// percentiles take fixed memory.
+mod hdr {
+    #[derive(Debug)]
+    pub struct Histogram {
+        buckets: Vec<u64>,
+        count: u64,
+    }
+    impl Histogram {
+        pub fn new() -> Histogram {
+            Histogram { buckets: vec![0; 10_001], count: 0 }
+        }
+        pub fn record(&mut self, ms: f64) {
+            let b = ((ms * 100.0).round() as usize).min(self.buckets.len() - 1);
+            self.buckets[b] += 1;
+            self.count += 1;
+        }
+        pub fn quantile(&self, q: f64) -> f64 {
+            let target = (self.count as f64 * q).ceil().max(1.0) as u64;
+            let mut seen = 0;
+            for (b, n) in self.buckets.iter().enumerate() {
+                seen += n;
+                if seen >= target {
+                    return b as f64 / 100.0;
+                }
+            }
+            0.0
+        }
+    }
+}
+
+fn percentile(sorted: &[f64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return 0.0;
+    }
+    sorted[((sorted.len() as f64 - 1.0) * q).round() as usize]
+}
+
+impl TickLoop {
+    fn new(
+        scene: Scene,
+        opts: ServerOptions,
+        world: WorldId,
+        egress: SyncSender<Out>,
+        shared: Arc<Shared>,
+    ) -> TickLoop {
+        let w = scene.world;
+        let mut rb = opts.rollback.clone().unwrap_or_else(|| RollbackConfig::for_world(&w));
+        rb.window_ticks = rb.window_ticks.max(1);
+        let plan = Plan::for_world(&w);
+        let session = Session::new(w, plan, rb);
+        TickLoop {
+            session,
+            opts,
+            world,
+            avatar: scene.avatar,
+            egress,
+            shared,
+            clients: BTreeMap::new(),
+            summary: Summary::default(),
+            tick_times: Vec::with_capacity(128),
+            all_tick_times: hdr::Histogram::new(),
+            period_events: 0,
+            period_rollbacks: 0,
+            period_depth: 0,
+            period_queue_max: 0,
+        }
+    }
+
+    fn put(&self, key: String, msg: &ServerMessage, encoding: Encoding) {
+        send(&self.egress, &self.shared, key, msg, encoding);
+    }
+
+    fn client_key(&self, pattern: keys::KeyPattern, client: ClientId) -> String {
+        pattern.key(&self.world, Some(client))
+    }
+
+    fn run(
+        &mut self,
+        stop: &AtomicBool,
+        ingress: Receiver<Ingress>,
+        control: Receiver<Control>,
+        queries: Receiver<zenoh::query::Query>,
+    ) -> Summary {
+        let hz = self.session.world().config.tick_hz;
+        let dt = Duration::from_secs_f64(1.0 / f64::from(hz));
+        let started = Instant::now();
+        let mut next = started;
+        let mut last_stats = Instant::now();
+        loop {
+            if stop.load(Ordering::SeqCst) || self.opts.max_ticks.is_some_and(|m| self.summary.ticks >= m) {
+                break;
+            }
+            // Deadline schedule. Behind by more than 4 ticks: drop the backlog and start a new
+            // schedule from now (catching up by running ticks back to back would only make the
+            // world run fast for a while); each dropped deadline counts as an overrun.
+            let now = Instant::now();
+            if now < next {
+                std::thread::sleep(next - now);
+            } else if now - next > dt * 4 {
+                let missed = ((now - next).as_secs_f64() / dt.as_secs_f64()) as u64;
+                self.summary.overruns += missed;
+                next = now;
+            }
+            next += dt;
+            let t0 = Instant::now();
+            self.tick(&ingress, &control, &queries);
+            let ms = t0.elapsed().as_secs_f64() * 1e3;
+            if t0.elapsed() > dt {
+                self.summary.overruns += 1;
+            }
+            self.tick_times.push(ms);
+            self.all_tick_times.record(ms);
+            self.summary.tick_ms_max = self.summary.tick_ms_max.max(ms);
+            if last_stats.elapsed() >= Duration::from_secs(1) {
+                last_stats = Instant::now();
+                self.publish_stats();
+            }
+        }
+        // Shutdown: everything still in the window is final now.
+        for batch in self.session.finish() {
+            self.put(keys::CONFIRMED.key(&self.world, None), &ServerMessage::Confirmed(batch), self.opts.encoding);
+        }
+        self.summary.tick_ms_p50 = self.all_tick_times.quantile(0.5);
+        self.summary.tick_ms_p99 = self.all_tick_times.quantile(0.99);
+        self.summary.egress_dropped = self.shared.egress_dropped.load(Ordering::Relaxed);
+        for (k, r) in RejectReason::ALL.iter().enumerate() {
+            let n = self.shared.rejected_in_callbacks[k].load(Ordering::Relaxed);
+            if n > 0 {
+                *self.summary.inputs_rejected.entry(r.name().to_string()).or_insert(0) += n;
+            }
+        }
+        self.summary.rollbacks = self.session.stats.rollbacks;
+        self.summary.rollback_depth_max = self.session.stats.depth_max;
+        self.summary.clone()
+    }
+
+    fn count_reject(&mut self, reason: RejectReason) {
+        *self.summary.inputs_rejected.entry(reason.name().to_string()).or_insert(0) += 1;
+    }
+
+    fn tick(
+        &mut self,
+        ingress: &Receiver<Ingress>,
+        control: &Receiver<Control>,
+        queries: &Receiver<zenoh::query::Query>,
+    ) {
+        let now = self.session.now();
+        // Presence.
+        while let Ok(c) = control.try_recv() {
+            match c {
+                Control::Join(client) => self.join(client),
+                Control::Leave(client) => {
+                    if let Some(s) = self.clients.get_mut(&client) {
+                        s.present = false;
+                        s.leave_at = Some(now.0 + self.opts.grace_ticks);
+                    }
+                }
+            }
+        }
+        let leaving: Vec<ClientId> = self
+            .clients
+            .iter()
+            .filter(|(_, s)| !s.present && s.leave_at.is_some_and(|t| t <= now.0))
+            .map(|(c, _)| *c)
+            .collect();
+        for c in leaving {
+            if let Some(s) = self.clients.remove(&c) {
+                if let Some(entity) = s.avatar {
+                    self.session.submit_system(SystemAction::Remove { entity });
+                }
+            }
+        }
+        // Inputs: every one queued now (the queue is bounded, so this is too).
+        let per_tick = f64::from(self.opts.inputs_per_client_per_s) / f64::from(self.session.world().config.tick_hz);
+        for c in self.clients.values_mut() {
+            c.tokens = (c.tokens + per_tick).min(f64::from(self.opts.inputs_per_client_per_s));
+        }
+        let mut queued = 0u32;
+        while let Ok(Ingress { input, encoding }) = ingress.try_recv() {
+            queued += 1;
+            let (client, seq, tick) = (input.client, input.seq, input.tick);
+            let ack_key = self.client_key(keys::CLIENT_ACK, client);
+            let state = self.clients.entry(client).or_insert(ClientState {
+                avatar: None,
+                present: false,
+                leave_at: Some(now.0 + self.opts.grace_ticks),
+                tokens: f64::from(self.opts.inputs_per_client_per_s),
+                encoding,
+            });
+            state.encoding = encoding;
+            if state.tokens < 1.0 {
+                self.count_reject(RejectReason::RateLimited);
+                let msg = reject(
+                    client,
+                    seq,
+                    tick,
+                    RejectReason::RateLimited,
+                    format!("more than {} inputs per second", self.opts.inputs_per_client_per_s),
+                );
+                self.put(ack_key, &msg, encoding);
+                continue;
+            }
+            state.tokens -= 1.0;
+            match self.session.submit(input) {
+                Ok(applied) => {
+                    self.summary.inputs_accepted += 1;
+                    let ack =
+                        ServerMessage::Ack(InputAck { client, seq, tick, applied_tick: applied, server_tick: now });
+                    self.put(ack_key, &ack, encoding);
+                }
+                Err(r) => {
+                    self.count_reject(r.reason);
+                    let msg = ServerMessage::Reject(InputReject {
+                        client,
+                        seq,
+                        tick,
+                        reason: r.reason,
+                        detail: r.detail,
+                        oldest_tick: r.oldest_tick,
+                        newest_tick: r.newest_tick,
+                    });
+                    self.put(ack_key, &msg, encoding);
+                }
+            }
+        }
+        self.period_queue_max = self.period_queue_max.max(queued);
+
+        // The tick.
+        let adv = self.session.advance();
+        self.summary.ticks += 1;
+        if adv.rollback_depth > 0 {
+            self.period_rollbacks += 1;
+            self.period_depth = self.period_depth.max(adv.rollback_depth);
+        }
+        let enc = self.opts.encoding;
+        if !adv.events.is_empty() {
+            self.summary.events += adv.events.len() as u64;
+            self.period_events += adv.events.len() as u64;
+            let batch = EventBatch { tick: adv.tick, revision: 0, events: adv.events.clone() };
+            self.per_client(&batch.events, adv.tick, |events| {
+                ServerMessage::Events(EventBatch { tick: batch.tick, revision: 0, events })
+            });
+            self.put(keys::EVENTS.key(&self.world, None), &ServerMessage::Events(batch), enc);
+        }
+        for c in &adv.corrections {
+            self.summary.corrections += 1;
+            let all: Vec<CollisionEvent> = c.retracted.iter().chain(&c.amended).chain(&c.added).cloned().collect();
+            let cc = c.clone();
+            self.per_client(&all, c.tick, move |events| {
+                let keep = |v: &[CollisionEvent]| {
+                    v.iter().filter(|e| events.iter().any(|x| x.key() == e.key())).cloned().collect()
+                };
+                ServerMessage::Corrections(impact_protocol::CorrectionBatch {
+                    tick: cc.tick,
+                    revision: cc.revision,
+                    retracted: keep(&cc.retracted),
+                    amended: keep(&cc.amended),
+                    added: keep(&cc.added),
+                })
+            });
+            self.put(keys::CORRECTIONS.key(&self.world, None), &ServerMessage::Corrections(c.clone()), enc);
+        }
+        if let Some(c) = &adv.confirmed {
+            if !c.events.is_empty() {
+                let cc = c.clone();
+                self.per_client(&c.events, c.tick, move |events| {
+                    ServerMessage::Confirmed(EventBatch { tick: cc.tick, revision: cc.revision, events })
+                });
+            }
+            self.put(keys::CONFIRMED.key(&self.world, None), &ServerMessage::Confirmed(c.clone()), enc);
+        }
+        for r in &adv.rays {
+            let e = self.clients.get(&r.client).map_or(enc, |c| c.encoding);
+            self.put(self.client_key(keys::CLIENT_ACK, r.client), &ServerMessage::RayResult(r.clone()), e);
+        }
+        for s in &adv.skipped {
+            self.count_reject(s.reason);
+            let e = self.clients.get(&s.client).map_or(enc, |c| c.encoding);
+            self.put(
+                self.client_key(keys::CLIENT_ACK, s.client),
+                &reject(s.client, s.seq, adv.tick, s.reason, s.detail.clone()),
+                e,
+            );
+        }
+        for (client, entity) in &adv.spawned {
+            if let Some(c) = self.clients.get_mut(client) {
+                c.avatar = Some(*entity);
+            }
+            self.welcome(*client, Some(*entity));
+        }
+        // Queries, answered from the history.
+        while let Ok(q) = queries.try_recv() {
+            self.answer(q);
+        }
+    }
+
+    fn welcome(&self, client: ClientId, avatar: Option<EntityId>) {
+        let cfg = &self.session.world().config;
+        let msg = ServerMessage::Welcome(Welcome {
+            client,
+            avatar,
+            tick: self.session.now(),
+            tick_hz: cfg.tick_hz,
+            window_ticks: cfg.window_ticks,
+        });
+        let e = self.clients.get(&client).map_or(self.opts.encoding, |c| c.encoding);
+        self.put(self.client_key(keys::CLIENT_ACK, client), &msg, e);
+    }
+
+    fn join(&mut self, client: ClientId) {
+        let now = self.session.now();
+        if let Some(s) = self.clients.get_mut(&client) {
+            s.present = true;
+            s.leave_at = None;
+            if s.avatar.is_some() {
+                let a = s.avatar;
+                self.welcome(client, a);
+                return;
+            }
+        }
+        if self.clients.len() >= self.opts.max_clients && !self.clients.contains_key(&client) {
+            return;
+        }
+        self.summary.clients += 1;
+        let state = ClientState {
+            avatar: None,
+            present: true,
+            leave_at: None,
+            tokens: f64::from(self.opts.inputs_per_client_per_s),
+            encoding: self.opts.encoding,
+        };
+        let had = self.clients.insert(client, state).is_some();
+        match (&self.avatar, had) {
+            (Some(rule), _) => {
+                let pos = avatar_position(rule, client.0, now.0);
+                self.session.submit_system(SystemAction::SpawnAvatar {
+                    client,
+                    class: rule.class,
+                    shape: rule.shape.clone(),
+                    pos,
+                });
+            }
+            (None, _) => self.welcome(client, None),
+        }
+    }
+
+    /// Publishes, for each client owning an entity in `events`, the batch `make` builds from the
+    /// events that concern it.
+    fn per_client(&self, events: &[CollisionEvent], tick: Tick, make: impl Fn(Vec<CollisionEvent>) -> ServerMessage) {
+        let w = self.session.world();
+        let past = self.session.frame(tick).map(|f| &f.state);
+        let owner = |id: EntityId| {
+            w.bodies
+                .slot(id)
+                .and_then(|s| w.bodies.owner[s])
+                .or_else(|| past.and_then(|p| p.bodies.slot(id).and_then(|s| p.bodies.owner[s])))
+        };
+        let mut by_client: BTreeMap<ClientId, Vec<CollisionEvent>> = BTreeMap::new();
+        for e in events {
+            let (oa, ob) = (owner(e.a), owner(e.b));
+            for c in [oa, ob].into_iter().flatten() {
+                let v = by_client.entry(c).or_default();
+                if v.last().is_none_or(|l| l.key() != e.key()) {
+                    v.push(e.clone());
+                }
+            }
+        }
+        for (client, evs) in by_client {
+            let e = self.clients.get(&client).map_or(self.opts.encoding, |c| c.encoding);
+            self.put(self.client_key(keys::CLIENT_EVENTS, client), &make(evs), e);
+        }
+    }
+
+    fn answer(&self, q: zenoh::query::Query) {
+        let params = q.parameters().clone();
+        let encoding = params.get("encoding").and_then(|e| e.parse().ok()).unwrap_or(self.opts.encoding);
+        let key = q.key_expr().as_str().to_string();
+        let parse = |name: &str| {
+            params.get(name).map(|v| v.parse::<u32>().map(Tick).map_err(|_| format!("{name}={v} is not a tick")))
+        };
+        let msg = if key.ends_with("/query/state") {
+            match parse("tick").transpose() {
+                Err(e) => ServerMessage::QueryError(QueryError { detail: e }),
+                Ok(t) => {
+                    let now = self.session.now();
+                    let world = match t {
+                        None => Some(self.session.world()),
+                        Some(t) if t == now => Some(self.session.world()),
+                        Some(t) => self.session.frame(t).map(|f| &f.state),
+                    };
+                    match world {
+                        Some(w) => ServerMessage::Snapshot(snapshot(w)),
+                        None => ServerMessage::QueryError(QueryError {
+                            detail: format!(
+                                "tick {} is outside the history (oldest {}, now {now})",
+                                t.map_or(0, |t| t.0),
+                                self.session.oldest_accepted()
+                            ),
+                        }),
+                    }
+                }
+            }
+        } else {
+            match (parse("from").transpose(), parse("to").transpose()) {
+                (Ok(Some(from)), Ok(Some(to))) if from <= to && to.0 - from.0 <= 10_000 => {
+                    let events = (from.0..=to.0)
+                        .filter_map(|t| self.session.frame(Tick(t)))
+                        .flat_map(|f| f.events.iter().cloned())
+                        .collect();
+                    ServerMessage::History(EventHistory { from, to, events })
+                }
+                (Err(e), _) | (_, Err(e)) => ServerMessage::QueryError(QueryError { detail: e }),
+                _ => ServerMessage::QueryError(QueryError {
+                    detail: "history needs from=T1;to=T2 with T1 <= T2, at most 10000 ticks".into(),
+                }),
+            }
+        };
+        if let Ok(bytes) = encode(&msg, encoding) {
+            if self.egress.try_send(Out::Reply { query: q, bytes, encoding }).is_err() {
+                self.shared.egress_dropped.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    }
+
+    fn publish_stats(&mut self) {
+        let mut times = std::mem::take(&mut self.tick_times);
+        times.sort_by(f64::total_cmp);
+        let w = self.session.world();
+        let mut rejected = self.summary.inputs_rejected.clone();
+        for (k, r) in RejectReason::ALL.iter().enumerate() {
+            let n = self.shared.rejected_in_callbacks[k].load(Ordering::Relaxed);
+            if n > 0 {
+                *rejected.entry(r.name().to_string()).or_insert(0) += n;
+            }
+        }
+        let stats = ServerStats {
+            tick: w.tick,
+            tick_ms_p50: percentile(&times, 0.5),
+            tick_ms_p99: percentile(&times, 0.99),
+            tick_ms_max: times.last().copied().unwrap_or(0.0),
+            overruns: self.summary.overruns,
+            bodies: w.bodies.len() as u32,
+            pairs_tested: self.session.stepper().stats.pairs_tested,
+            rollbacks: self.period_rollbacks,
+            rollback_depth_max: self.period_depth,
+            inputs_accepted: self.summary.inputs_accepted,
+            inputs_rejected: rejected,
+            events_per_s: self.period_events as f64,
+            queue_depth_max: self.period_queue_max,
+        };
+        if self.opts.verbose {
+            eprintln!(
+                "  tick {} | tick ms p50 {:.3} p99 {:.3} | bodies {} | clients {} | inputs {} | rollbacks {} (depth {}) | events/s {}",
+                stats.tick, stats.tick_ms_p50, stats.tick_ms_p99, stats.bodies, self.clients.len(), stats.inputs_accepted, stats.rollbacks, stats.rollback_depth_max, stats.events_per_s
+            );
+        }
+        self.put(keys::STATS.key(&self.world, None), &ServerMessage::Stats(stats), self.opts.encoding);
+        self.period_events = 0;
+        self.period_rollbacks = 0;
+        self.period_depth = 0;
+        self.period_queue_max = 0;
+    }
+}
+
+/// The world as a snapshot message.
+pub fn snapshot(w: &crate::sim::World) -> impact_protocol::WorldSnapshot {
+    let b = &w.bodies;
+    impact_protocol::WorldSnapshot {
+        tick: w.tick,
+        state_hash: w.state_hash(),
+        bodies: (0..b.len())
+            .map(|i| impact_protocol::BodyState {
+                entity: b.id[i],
+                class: w.config.classes.props[b.class[i].0 as usize].name.clone(),
+                owner: b.owner[i],
+                position: b.pos[i].to_array(),
+                velocity: b.vel[i].to_array(),
+            })
+            .collect(),
+    }
+}

@@ -1,0 +1,30 @@
+//! Building the Zenoh configuration: embedded peer listening on loopback by default, a config
+//! file for anything else (joining a router, other transports, TLS).
+
+use super::server::RuntimeError;
+use std::path::Path;
+
+/// The Zenoh configuration for a process of impact: from `file` if given (used as is, except
+/// that `listen`/`connect` given on the command line are added), otherwise a peer that listens
+/// on `listen`, connects to `connect`, and does no multicast scouting (so a test or a demo never
+/// talks to anything it did not name).
+pub fn zenoh_config(file: Option<&Path>, listen: &[String], connect: &[String]) -> Result<zenoh::Config, RuntimeError> {
+    let err = |what: &str, e: zenoh::Error| RuntimeError::Zenoh(format!("{what}: {e}"));
+    let mut c = match file {
+        Some(p) => zenoh::Config::from_file(p).map_err(|e| RuntimeError::Config(format!("{}: {e}", p.display())))?,
+        None => {
+            let mut c = zenoh::Config::default();
+            c.insert_json5("mode", "\"peer\"").map_err(|e| err("mode", e))?;
+            c.insert_json5("scouting/multicast/enabled", "false").map_err(|e| err("scouting", e))?;
+            c
+        }
+    };
+    let list = |v: &[String]| serde_json::to_string(v).unwrap_or_else(|_| "[]".into());
+    if !listen.is_empty() {
+        c.insert_json5("listen/endpoints", &list(listen)).map_err(|e| err("listen", e))?;
+    }
+    if !connect.is_empty() {
+        c.insert_json5("connect/endpoints", &list(connect)).map_err(|e| err("connect", e))?;
+    }
+    Ok(c)
+}
