@@ -1,1 +1,14 @@
-//! impact client sim.
+//! Simulated clients for load-testing an impact server, and the event-stream inspector.
+//!
+//! - [`net`]: opening a client's Zenoh session.
+//! - [`view`]: a client's view of the event stream (events, then corrections by identity), and
+//!   the check that it ends equal to the confirmed stream.
+//! - [`delay`]: a delay line that models network latency, jitter and loss.
+//! - [`load`]: the load generator behind `impact-sim`.
+//! - [`report`]: its report (human summary, JSON, SVG histogram).
+
+pub mod delay;
+pub mod load;
+pub mod net;
+pub mod report;
+pub mod view;

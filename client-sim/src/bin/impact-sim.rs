@@ -1,0 +1,139 @@
+//! impact-sim: load-test an impact server with simulated clients behind a modelled network.
+
+use anyhow::{bail, Context, Result};
+use clap::Parser;
+use impact_client_sim::delay::Link;
+use impact_client_sim::load::{self, Behaviour, LoadConfig};
+use impact_client_sim::report::latency_svg;
+use impact_protocol::{Encoding, WorldId};
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Simulated clients for load tests.
+#[derive(Parser, Debug)]
+#[command(version, about)]
+struct Args {
+    /// Server (or router) endpoint(s).
+    #[arg(long, default_value = "tcp/127.0.0.1:7447")]
+    connect: Vec<String>,
+    /// A Zenoh configuration file instead of --connect.
+    #[arg(long)]
+    zenoh_config: Option<PathBuf>,
+    /// World name.
+    #[arg(long, default_value = "arena")]
+    world: String,
+    /// Number of clients.
+    #[arg(long, default_value_t = 100)]
+    clients: u32,
+    /// Id of the first client (run several sims side by side with different ranges).
+    #[arg(long, default_value_t = 1000)]
+    first_client: u32,
+    /// Zenoh sessions the clients share (default: one per 100 clients).
+    #[arg(long)]
+    sessions: Option<u32>,
+    /// Length of the load, e.g. 30s or 2m.
+    #[arg(long, default_value = "10s", value_parser = parse_duration)]
+    duration: Duration,
+    /// One-way latency, ms (each direction).
+    #[arg(long, default_value_t = 80.0)]
+    latency_ms: f64,
+    /// Jitter, ms (latency +- jitter, uniform).
+    #[arg(long, default_value_t = 20.0)]
+    jitter_ms: f64,
+    /// Probability an input is lost on the way to the server.
+    #[arg(long, default_value_t = 0.0)]
+    loss: f64,
+    /// What players do.
+    #[arg(long, value_enum, default_value_t = Behaviour::Mixed)]
+    behaviour: Behaviour,
+    /// Inputs per second per client.
+    #[arg(long, default_value_t = 10.0)]
+    input_hz: f64,
+    /// Encoding of inputs (msgpack or json).
+    #[arg(long, default_value = "msgpack")]
+    encoding: Encoding,
+    /// Write the JSON report here (and an SVG latency histogram beside it).
+    #[arg(long)]
+    report: Option<PathBuf>,
+    /// Exit non-zero if the input-to-ack p99 exceeds this, ms.
+    #[arg(long)]
+    assert_p99_ms: Option<f64>,
+    /// Seed for behaviour and the network model.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+fn parse_duration(s: &str) -> Result<Duration, String> {
+    let (num, unit) = s.split_at(s.find(|c: char| !c.is_ascii_digit() && c != '.').unwrap_or(s.len()));
+    let v: f64 = num.parse().map_err(|_| format!("{s:?} is not a duration like 30s or 2m"))?;
+    let secs = match unit {
+        "" | "s" => v,
+        "ms" => v / 1000.0,
+        "m" => v * 60.0,
+        _ => return Err(format!("{s:?}: unit must be ms, s or m")),
+    };
+    Ok(Duration::from_secs_f64(secs))
+}
+
+fn main() -> Result<()> {
+    let a = Args::parse();
+    if !(0.0..=1.0).contains(&a.loss) {
+        bail!("--loss {} must be in [0, 1]", a.loss);
+    }
+    let ms = |x: f64| Duration::from_secs_f64(x.max(0.0) / 1000.0);
+    let cfg = LoadConfig {
+        connect: if a.zenoh_config.is_some() { Vec::new() } else { a.connect.clone() },
+        zenoh_config: a.zenoh_config.clone(),
+        world: WorldId::new(a.world.clone()).map_err(anyhow::Error::msg)?,
+        clients: a.clients,
+        first_client: a.first_client,
+        sessions: a.sessions.unwrap_or_else(|| a.clients.div_ceil(100).max(1)),
+        duration: a.duration,
+        uplink: Link { latency: ms(a.latency_ms), jitter: ms(a.jitter_ms), loss: a.loss },
+        downlink: Link { latency: ms(a.latency_ms), jitter: ms(a.jitter_ms), loss: 0.0 },
+        behaviour: a.behaviour,
+        input_hz: a.input_hz,
+        encoding: a.encoding,
+        seed: a.seed,
+        // Long enough for the last inputs to be acked and their ticks confirmed.
+        settle: ms(4.0 * (a.latency_ms + a.jitter_ms) + 1500.0),
+        progress: true,
+    };
+    eprintln!(
+        "impact-sim: {} clients ({:?}) over {} sessions -> {}, {} s, latency {} +- {} ms, loss {}",
+        cfg.clients,
+        cfg.behaviour,
+        cfg.sessions,
+        a.connect.join(","),
+        cfg.duration.as_secs_f64(),
+        a.latency_ms,
+        a.jitter_ms,
+        a.loss
+    );
+    let report = load::run(&cfg)?;
+    println!("{report}");
+    if let Some(path) = &a.report {
+        std::fs::write(path, serde_json::to_string_pretty(&report)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+        let svg = path.with_extension("svg");
+        std::fs::write(&svg, latency_svg(&report))?;
+        println!("report: {} and {}", path.display(), svg.display());
+    }
+    if report.clients_welcomed < report.clients {
+        eprintln!(
+            "warning: {} of {} clients were never welcomed (is the server running the same world?)",
+            report.clients - report.clients_welcomed,
+            report.clients
+        );
+    }
+    if let Some(bound) = a.assert_p99_ms {
+        if report.latency_ms_p99 > bound || report.acks == 0 {
+            bail!(
+                "input-to-ack p99 {:.1} ms exceeds the bound {bound} ms (acks: {})",
+                report.latency_ms_p99,
+                report.acks
+            );
+        }
+    }
+    Ok(())
+}

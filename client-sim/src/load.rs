@@ -1,0 +1,361 @@
+//! The load generator: many simulated clients over a few Zenoh sessions, each one a player
+//! behind a network path with latency, jitter and loss.
+//!
+//! Every client declares its presence, waits for its welcome (its avatar and the server's tick),
+//! then acts at `input_hz`: it stamps each input with the tick it believes the server is at (its
+//! own clock since the welcome, which it saw one downlink latency late), and sends it through the
+//! uplink delay line, so inputs reach the server late and exercise rollback. Everything the server
+//! sends back passes the downlink delay line before the client sees it. Each client keeps its
+//! view of its event stream (events, then corrections) and checks it against every confirmed
+//! tick.
+//!
+//! Clients share `sessions` Zenoh sessions (default one per 100 clients): a session per client
+//! would cost a TCP connection and its buffers each, for nothing the test measures, and a single
+//! session would serialise every client's traffic through one link.
+
+use crate::delay::{DelayLine, Link, Rng};
+use crate::report::Report;
+use crate::view::View;
+use hdrhistogram::Histogram;
+use impact_protocol::{
+    keys, Action, ClientId, ClientInput, ClientMessage, Encoding, EntityId, ServerMessage, Tick, WorldId,
+};
+use std::collections::BTreeMap;
+use std::io::{IsTerminal, Write};
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use zenoh::Wait;
+
+/// What the simulated players do.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Behaviour {
+    /// Random walks: a new random velocity at each input.
+    Wander,
+    /// Head for a moving point in the middle of the world.
+    Chase,
+    /// Fire hitscan rays in random directions, and move now and then.
+    Shooter,
+    /// A third of each.
+    Mixed,
+}
+
+/// Load test settings.
+#[derive(Clone, Debug)]
+pub struct LoadConfig {
+    /// Endpoints of the server (or a router).
+    pub connect: Vec<String>,
+    /// A Zenoh configuration file instead.
+    pub zenoh_config: Option<PathBuf>,
+    /// World name.
+    pub world: WorldId,
+    /// Number of clients.
+    pub clients: u32,
+    /// Id of the first client.
+    pub first_client: u32,
+    /// Zenoh sessions the clients share.
+    pub sessions: u32,
+    /// Length of the load.
+    pub duration: Duration,
+    /// Client -> server path.
+    pub uplink: Link,
+    /// Server -> client path.
+    pub downlink: Link,
+    /// What players do.
+    pub behaviour: Behaviour,
+    /// Inputs per second per client.
+    pub input_hz: f64,
+    /// Encoding of inputs.
+    pub encoding: Encoding,
+    /// Seed for the random behaviour and the network model.
+    pub seed: u64,
+    /// Time after the load to wait for acks and confirmations.
+    pub settle: Duration,
+    /// Live progress.
+    pub progress: bool,
+}
+
+enum Inbound {
+    Msg(usize, ServerMessage),
+    Stats(impact_protocol::ServerStats),
+}
+
+struct Client {
+    id: ClientId,
+    behaviour: Behaviour,
+    avatar: Option<EntityId>,
+    clock: Option<(Tick, Instant, u32)>,
+    seq: u32,
+    next_action: Instant,
+    sent: BTreeMap<u32, Instant>,
+    view: View,
+}
+
+impl Client {
+    fn tick_estimate(&self, now: Instant) -> Option<Tick> {
+        let (tick, at, hz) = self.clock?;
+        Some(Tick(tick.0 + ((now - at).as_secs_f64() * f64::from(hz)) as u32))
+    }
+}
+
+fn act(c: &mut Client, rng: &mut Rng, now: Instant) -> Option<ClientInput> {
+    let entity = c.avatar?;
+    let tick = c.tick_estimate(now)?;
+    c.seq += 1;
+    let dir = |rng: &mut Rng| {
+        let a = std::f64::consts::TAU * rng.unit();
+        [a.cos(), 0.3 * (rng.unit() - 0.5), a.sin()]
+    };
+    let action = match c.behaviour {
+        Behaviour::Wander => {
+            let d = dir(rng);
+            let s = 2.0 + 6.0 * rng.unit();
+            Action::SetVelocity { entity, velocity: [d[0] * s, d[1] * s, d[2] * s] }
+        }
+        Behaviour::Chase => {
+            // The goal circles the middle of the world; players head roughly for it.
+            let t = now.elapsed().as_secs_f64() + f64::from(c.seq) * 0.1;
+            let goal = [10.0 * t.cos(), 10.0, 10.0 * t.sin()];
+            let jitter = dir(rng);
+            Action::SetVelocity {
+                entity,
+                velocity: [goal[0] * 0.3 + jitter[0], (goal[1] - 10.0) * 0.3, goal[2] * 0.3 + jitter[2]],
+            }
+        }
+        Behaviour::Shooter | Behaviour::Mixed => {
+            if rng.unit() < 0.7 {
+                let d = dir(rng);
+                let o = [40.0 * (rng.unit() - 0.5), 2.0 + 15.0 * rng.unit(), 40.0 * (rng.unit() - 0.5)];
+                Action::FireRay { shooter: entity, origin: o, direction: d, max_distance_m: 60.0 }
+            } else {
+                let d = dir(rng);
+                Action::SetVelocity { entity, velocity: [d[0] * 5.0, d[1] * 5.0, d[2] * 5.0] }
+            }
+        }
+    };
+    Some(ClientInput { client: c.id, seq: c.seq, tick, actions: vec![action] })
+}
+
+/// Runs the load and returns its report.
+pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
+    let n = cfg.clients as usize;
+    let sessions: Vec<zenoh::Session> = (0..cfg.sessions.max(1))
+        .map(|_| crate::net::open(&cfg.connect, cfg.zenoh_config.as_deref()))
+        .collect::<anyhow::Result<_>>()?;
+    let inbox: Arc<Mutex<Vec<(Instant, Inbound)>>> = Arc::new(Mutex::new(Vec::new()));
+    const INBOX_MAX: usize = 1 << 20;
+    let dropped_inbox = Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let mut keep = Vec::new(); // subscribers and tokens live as long as the run
+    let mut clients: Vec<Client> = Vec::with_capacity(n);
+    let start = Instant::now();
+    for k in 0..n {
+        let id = ClientId(cfg.first_client + k as u32);
+        let s = &sessions[k % sessions.len()];
+        for pattern in [keys::CLIENT_ACK, keys::CLIENT_EVENTS] {
+            let inbox = inbox.clone();
+            let dropped = dropped_inbox.clone();
+            let sub = s
+                .declare_subscriber(pattern.key(&cfg.world, Some(id)))
+                .callback(move |sample| {
+                    if let Ok(msg) = crate::net::decode_server(&sample) {
+                        let mut q = inbox.lock().unwrap_or_else(|e| e.into_inner());
+                        if q.len() < INBOX_MAX {
+                            q.push((Instant::now(), Inbound::Msg(k, msg)));
+                        } else {
+                            dropped.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        }
+                    }
+                })
+                .wait()
+                .map_err(|e| anyhow::anyhow!("subscribing: {e}"))?;
+            keep.push(sub);
+        }
+        let behaviour = match cfg.behaviour {
+            Behaviour::Mixed => [Behaviour::Wander, Behaviour::Chase, Behaviour::Shooter][k % 3],
+            b => b,
+        };
+        clients.push(Client {
+            id,
+            behaviour,
+            avatar: None,
+            clock: None,
+            seq: 0,
+            next_action: start,
+            sent: BTreeMap::new(),
+            view: View::default(),
+        });
+    }
+    let stats_sub = {
+        let inbox = inbox.clone();
+        sessions[0]
+            .declare_subscriber(keys::STATS.key(&cfg.world, None))
+            .callback(move |sample| {
+                if let Ok(ServerMessage::Stats(s)) = crate::net::decode_server(&sample) {
+                    inbox.lock().unwrap_or_else(|e| e.into_inner()).push((Instant::now(), Inbound::Stats(s)));
+                }
+            })
+            .wait()
+            .map_err(|e| anyhow::anyhow!("subscribing: {e}"))?
+    };
+    // Presence last, so every subscription is in place when the welcome comes.
+    let mut tokens = Vec::with_capacity(n);
+    for (k, c) in clients.iter().enumerate() {
+        let t = sessions[k % sessions.len()]
+            .liveliness()
+            .declare_token(keys::PRESENCE.key(&cfg.world, Some(c.id)))
+            .wait()
+            .map_err(|e| anyhow::anyhow!("presence token: {e}"))?;
+        tokens.push(t);
+    }
+
+    let mut rng = Rng::new(cfg.seed);
+    let mut up: DelayLine<(usize, Vec<u8>)> = DelayLine::new(1 << 20);
+    let mut down: DelayLine<Inbound> = DelayLine::new(1 << 21);
+    let mut latency = Histogram::<u64>::new_with_bounds(1, 60_000_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut depth = Histogram::<u64>::new_with_bounds(1, 100_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut r = Report {
+        clients: cfg.clients,
+        sessions: cfg.sessions.max(1),
+        duration_s: cfg.duration.as_secs_f64(),
+        ..Report::default()
+    };
+    let period = Duration::from_secs_f64(1.0 / cfg.input_hz.max(0.1));
+    let load_start = Instant::now();
+    let load_end = load_start + cfg.duration;
+    let stop = load_end + cfg.settle;
+    let mut last_progress = Instant::now();
+    let tty = std::io::stderr().is_terminal();
+    let input_keys: Vec<String> = clients.iter().map(|c| keys::INPUT.key(&cfg.world, Some(c.id))).collect();
+    loop {
+        let now = Instant::now();
+        if now >= stop {
+            break;
+        }
+        // Downlink: received messages enter the delay line; due ones reach their client.
+        let arrived = std::mem::take(&mut *inbox.lock().unwrap_or_else(|e| e.into_inner()));
+        for (at, m) in arrived {
+            down.send(at, &cfg.downlink, &mut rng, m);
+        }
+        while let Some(m) = down.pop_due(now) {
+            match m {
+                Inbound::Stats(s) => {
+                    r.server_tick_ms_p99 = s.tick_ms_p99;
+                    r.server_overruns = s.overruns;
+                }
+                Inbound::Msg(k, msg) => {
+                    let c = &mut clients[k];
+                    match msg {
+                        ServerMessage::Welcome(w) => {
+                            if c.avatar.is_none() && w.avatar.is_some() {
+                                r.clients_welcomed += 1;
+                            }
+                            c.avatar = w.avatar;
+                            c.clock = Some((w.tick, now, w.tick_hz));
+                            // Spread the clients' actions over one period.
+                            c.next_action = now + period.mul_f64(k as f64 / n.max(1) as f64);
+                        }
+                        ServerMessage::Ack(a) => {
+                            if let Some(sent) = c.sent.remove(&a.seq) {
+                                r.acks += 1;
+                                let _ = latency.record((now - sent).as_micros().max(1) as u64);
+                            }
+                        }
+                        ServerMessage::Reject(j) => {
+                            c.sent.remove(&j.seq);
+                            *r.rejects.entry(j.reason.name().to_string()).or_insert(0) += 1;
+                        }
+                        ServerMessage::Events(b) => {
+                            r.events_received += b.events.len() as u64;
+                            c.view.events(&b);
+                        }
+                        ServerMessage::Corrections(cb) => {
+                            r.corrections += 1;
+                            if let Some(t) = c.tick_estimate(now) {
+                                let _ = depth.record(u64::from(t.0.saturating_sub(cb.tick.0)).max(1));
+                            }
+                            c.view.correct(&cb);
+                        }
+                        ServerMessage::Confirmed(b) => {
+                            c.view.confirm(&b);
+                        }
+                        _ => {}
+                    }
+                }
+            }
+        }
+        // Clients act; inputs enter the uplink delay line.
+        if now < load_end {
+            for (k, c) in clients.iter_mut().enumerate() {
+                if c.next_action > now {
+                    continue;
+                }
+                c.next_action += period;
+                if let Some(input) = act(c, &mut rng, now) {
+                    let seq = input.seq;
+                    if let Ok(bytes) = impact_protocol::encode(&ClientMessage::Input(input), cfg.encoding) {
+                        r.inputs_sent += 1;
+                        if up.send(now, &cfg.uplink, &mut rng, (k, bytes)) {
+                            c.sent.insert(seq, now);
+                        }
+                    }
+                }
+            }
+        }
+        while let Some((k, bytes)) = up.pop_due(now) {
+            let s = &sessions[k % sessions.len()];
+            if s.put(&input_keys[k], bytes).encoding(cfg.encoding.zenoh_tag()).wait().is_ok() {
+                r.inputs_delivered += 1;
+            }
+        }
+        if last_progress.elapsed() >= Duration::from_secs(1) {
+            last_progress = Instant::now();
+            let t = load_start.elapsed().as_secs_f64();
+            let line = format!(
+                "  {t:5.1} s | welcomed {}/{} | inputs {} | acks {} | p99 {:.1} ms | events {} | corrections {} | views ok {} bad {}",
+                r.clients_welcomed,
+                cfg.clients,
+                r.inputs_sent,
+                r.acks,
+                latency.value_at_quantile(0.99) as f64 / 1000.0,
+                r.events_received,
+                r.corrections,
+                clients.iter().map(|c| c.view.matched).sum::<u64>(),
+                clients.iter().map(|c| c.view.mismatched).sum::<u64>()
+            );
+            if cfg.progress {
+                if tty {
+                    eprint!("\r{line}   ");
+                } else {
+                    eprintln!("{line}");
+                }
+            }
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    if cfg.progress && tty {
+        eprintln!();
+    }
+    r.inputs_lost_in_network = up.lost;
+    r.inputs_unanswered = clients.iter().map(|c| c.sent.len() as u64).sum();
+    r.latency_ms_p50 = latency.value_at_quantile(0.5) as f64 / 1000.0;
+    r.latency_ms_p99 = latency.value_at_quantile(0.99) as f64 / 1000.0;
+    r.latency_ms_max = latency.max() as f64 / 1000.0;
+    r.events_per_s = r.events_received as f64 / cfg.duration.as_secs_f64().max(1e-9);
+    r.corrections_per_s = r.corrections as f64 / cfg.duration.as_secs_f64().max(1e-9);
+    r.correction_depth_p50 = depth.value_at_quantile(0.5) as f64;
+    r.correction_depth_max = depth.max() as f64;
+    r.views_matched = clients.iter().map(|c| c.view.matched).sum();
+    r.views_mismatched = clients.iter().map(|c| c.view.mismatched).sum();
+    let bucket = 5_000u64;
+    let top = latency.max().div_ceil(bucket).min(400);
+    r.latency_histogram =
+        (1..=top).map(|b| (b as f64 * 5.0, latency.count_between((b - 1) * bucket + 1, b * bucket))).collect();
+    drop(tokens);
+    drop(stats_sub);
+    drop(keep);
+    for s in sessions {
+        let _ = s.close().wait();
+    }
+    let _ = std::io::stderr().flush();
+    Ok(r)
+}

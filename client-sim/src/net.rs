@@ -1,0 +1,33 @@
+//! Opening a Zenoh session for clients: a peer that connects to the given endpoints, with
+//! multicast scouting off, or a configuration file.
+
+use std::path::Path;
+use zenoh::Wait;
+
+/// Opens a session connected to `connect` (or configured by `file`).
+pub fn open(connect: &[String], file: Option<&Path>) -> anyhow::Result<zenoh::Session> {
+    let mut c = match file {
+        Some(p) => zenoh::Config::from_file(p).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?,
+        None => {
+            let mut c = zenoh::Config::default();
+            c.insert_json5("mode", "\"peer\"").map_err(|e| anyhow::anyhow!("{e}"))?;
+            c.insert_json5("scouting/multicast/enabled", "false").map_err(|e| anyhow::anyhow!("{e}"))?;
+            c.insert_json5("listen/endpoints", "[]").map_err(|e| anyhow::anyhow!("{e}"))?;
+            c
+        }
+    };
+    if !connect.is_empty() {
+        let list = serde_json::to_string(connect)?;
+        c.insert_json5("connect/endpoints", &list).map_err(|e| anyhow::anyhow!("{e}"))?;
+    }
+    zenoh::open(c).wait().map_err(|e| anyhow::anyhow!("opening a zenoh session: {e}"))
+}
+
+/// Decodes a sample's payload by its encoding tag (MessagePack when untagged).
+pub fn decode_server(
+    sample: &zenoh::sample::Sample,
+) -> Result<impact_protocol::ServerMessage, impact_protocol::ProtocolError> {
+    let tag = sample.encoding().to_string();
+    let enc = impact_protocol::Encoding::from_zenoh_tag(&tag).unwrap_or_default();
+    impact_protocol::decode(&sample.payload().to_bytes(), enc, impact_protocol::limits::MAX_SERVER_MESSAGE_BYTES)
+}

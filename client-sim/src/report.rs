@@ -1,0 +1,128 @@
+//! The load test's report: a human summary, a JSON document, and an SVG histogram of latency.
+
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// Everything a load run measured.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Report {
+    /// Simulated clients.
+    pub clients: u32,
+    /// Zenoh sessions they shared.
+    pub sessions: u32,
+    /// Seconds of load.
+    pub duration_s: f64,
+    /// Clients that were welcomed with an avatar.
+    pub clients_welcomed: u32,
+    /// Inputs the clients produced.
+    pub inputs_sent: u64,
+    /// Inputs dropped by the simulated uplink loss.
+    pub inputs_lost_in_network: u64,
+    /// Inputs delivered to the server.
+    pub inputs_delivered: u64,
+    /// Acks received.
+    pub acks: u64,
+    /// Rejects received, by reason.
+    pub rejects: BTreeMap<String, u64>,
+    /// Inputs delivered but neither acked nor rejected (should be 0 once settled).
+    pub inputs_unanswered: u64,
+    /// Input to ack latency, ms: median (round trip through the simulated network and the tick).
+    pub latency_ms_p50: f64,
+    /// 99th percentile, ms.
+    pub latency_ms_p99: f64,
+    /// Maximum, ms.
+    pub latency_ms_max: f64,
+    /// Events received on the clients' own streams.
+    pub events_received: u64,
+    /// Per second, over the load.
+    pub events_per_s: f64,
+    /// Correction batches received.
+    pub corrections: u64,
+    /// Per second.
+    pub corrections_per_s: f64,
+    /// How far back corrections reached, ticks: median.
+    pub correction_depth_p50: f64,
+    /// Deepest correction, ticks.
+    pub correction_depth_max: f64,
+    /// Confirmed ticks whose client view equalled the confirmed stream.
+    pub views_matched: u64,
+    /// Confirmed ticks whose view did not.
+    pub views_mismatched: u64,
+    /// The server's last reported tick time p99, ms.
+    pub server_tick_ms_p99: f64,
+    /// The server's last reported overruns.
+    pub server_overruns: u64,
+    /// Latency histogram: `(upper bound ms, count)` per 5 ms bucket.
+    pub latency_histogram: Vec<(f64, u64)>,
+}
+
+impl std::fmt::Display for Report {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "impact-sim: {} clients over {} sessions for {:.1} s ({} welcomed)",
+            self.clients, self.sessions, self.duration_s, self.clients_welcomed
+        )?;
+        writeln!(
+            f,
+            "  inputs   sent {} | lost in the network {} | delivered {} | acked {} | unanswered {}",
+            self.inputs_sent, self.inputs_lost_in_network, self.inputs_delivered, self.acks, self.inputs_unanswered
+        )?;
+        let rejects: Vec<String> = self.rejects.iter().map(|(k, v)| format!("{k} {v}")).collect();
+        writeln!(f, "  rejects  {}", if rejects.is_empty() { "none".into() } else { rejects.join(", ") })?;
+        writeln!(
+            f,
+            "  latency  input -> ack  p50 {:.1} ms  p99 {:.1} ms  max {:.1} ms",
+            self.latency_ms_p50, self.latency_ms_p99, self.latency_ms_max
+        )?;
+        writeln!(
+            f,
+            "  events   {} ({:.0}/s) | corrections {} ({:.1}/s), depth p50 {:.0} max {:.0} ticks",
+            self.events_received,
+            self.events_per_s,
+            self.corrections,
+            self.corrections_per_s,
+            self.correction_depth_p50,
+            self.correction_depth_max
+        )?;
+        writeln!(f, "  views    {} confirmed ticks matched, {} differed", self.views_matched, self.views_mismatched)?;
+        write!(f, "  server   tick p99 {:.3} ms, overruns {}", self.server_tick_ms_p99, self.server_overruns)
+    }
+}
+
+/// The latency histogram as an SVG bar chart.
+pub fn latency_svg(r: &Report) -> String {
+    let (w, h, l, b, t) = (640.0, 360.0, 60.0, 50.0, 40.0);
+    let max = r.latency_histogram.iter().map(|x| x.1).max().unwrap_or(1).max(1) as f64;
+    let n = r.latency_histogram.len().max(1) as f64;
+    let bw = (w - l - 20.0) / n;
+    let mut s = format!(
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="12"><rect width="{w}" height="{h}" fill="white"/>"#
+    );
+    s += &format!(
+        r#"<text x="{}" y="22" font-size="15" text-anchor="middle">input to ack latency, {} clients (p50 {:.1} ms, p99 {:.1} ms)</text>"#,
+        w / 2.0,
+        r.clients,
+        r.latency_ms_p50,
+        r.latency_ms_p99
+    );
+    for (k, (upper, count)) in r.latency_histogram.iter().enumerate() {
+        let bh = (*count as f64 / max) * (h - t - b);
+        let x = l + k as f64 * bw;
+        s += &format!(
+            r##"<rect x="{x:.1}" y="{:.1}" width="{:.1}" height="{bh:.1}" fill="#1f77b4"/>"##,
+            h - b - bh,
+            (bw - 1.0).max(0.5)
+        );
+        if k % (r.latency_histogram.len() / 8).max(1) == 0 {
+            s += &format!(r#"<text x="{x:.1}" y="{}" text-anchor="middle">{upper:.0}</text>"#, h - b + 16.0);
+        }
+    }
+    s += &format!(r#"<text x="{}" y="{}" text-anchor="middle">ms</text>"#, l + (w - l) / 2.0, h - 12.0);
+    s += &format!(
+        r#"<text x="16" y="{}" transform="rotate(-90 16 {})" text-anchor="middle">inputs</text></svg>"#,
+        h / 2.0,
+        h / 2.0
+    );
+    s + "\n"
+}
