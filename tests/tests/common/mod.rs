@@ -1,0 +1,94 @@
+//! Helpers for end-to-end tests: a server on an ephemeral loopback port, client sessions, and
+//! a bounded wait for messages.
+#![allow(dead_code)]
+
+use impact_protocol::{encode, keys, ClientId, ClientInput, ClientMessage, Encoding, ServerMessage, WorldId};
+use impact_server::runtime::{self, ServerHandle, ServerOptions};
+use impact_server::scene::Scene;
+use std::sync::mpsc::{sync_channel, Receiver};
+use std::time::{Duration, Instant};
+use zenoh::Wait;
+
+/// A free TCP port on loopback (bound and released; the race is harmless in tests).
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr()).map(|a| a.port()).expect("a free port")
+}
+
+/// Starts a server on `scene` listening on a fresh port; returns it and the endpoint.
+pub fn server(scene: Scene, tweak: impl FnOnce(&mut ServerOptions)) -> (ServerHandle, String) {
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let mut opts = ServerOptions { listen: vec![endpoint.clone()], ..ServerOptions::default() };
+    tweak(&mut opts);
+    let h = runtime::start(scene, opts).expect("server starts");
+    (h, endpoint)
+}
+
+/// A client session connected to `endpoint`.
+pub fn client(endpoint: &str) -> zenoh::Session {
+    let s = impact_client_sim::net::open(&[endpoint.to_string()], None).expect("client session");
+    // Give the link a moment to come up before declaring interest.
+    std::thread::sleep(Duration::from_millis(300));
+    s
+}
+
+/// Decoded messages published on `key`.
+pub struct Inbox {
+    rx: Receiver<ServerMessage>,
+    _sub: zenoh::pubsub::Subscriber<()>,
+}
+
+impl Inbox {
+    /// Subscribes to `key`.
+    pub fn new(s: &zenoh::Session, key: String) -> Inbox {
+        let (tx, rx) = sync_channel(100_000);
+        let sub = s
+            .declare_subscriber(key)
+            .callback(move |sample| {
+                if let Ok(m) = impact_client_sim::net::decode_server(&sample) {
+                    let _ = tx.try_send(m);
+                }
+            })
+            .wait()
+            .expect("subscriber");
+        Inbox { rx, _sub: sub }
+    }
+
+    /// The first message within `timeout` for which `f` returns something.
+    pub fn wait_for<T>(&self, timeout: Duration, mut f: impl FnMut(&ServerMessage) -> Option<T>) -> Option<T> {
+        let end = Instant::now() + timeout;
+        while let Some(left) = end.checked_duration_since(Instant::now()) {
+            match self.rx.recv_timeout(left) {
+                Ok(m) => {
+                    if let Some(t) = f(&m) {
+                        return Some(t);
+                    }
+                }
+                Err(_) => return None,
+            }
+        }
+        None
+    }
+}
+
+/// Publishes an input on the client's key.
+pub fn send(s: &zenoh::Session, world: &WorldId, input: &ClientInput, encoding: Encoding) {
+    let bytes = encode(&ClientMessage::Input(input.clone()), encoding).expect("encodes");
+    send_raw(s, world, input.client, bytes, encoding);
+}
+
+/// Publishes raw bytes on a client's input key.
+pub fn send_raw(s: &zenoh::Session, world: &WorldId, client: ClientId, bytes: Vec<u8>, encoding: Encoding) {
+    s.put(keys::INPUT.key(world, Some(client)), bytes).encoding(encoding.zenoh_tag()).wait().expect("put");
+}
+
+/// Declares presence for a client and returns the token (drop it to leave).
+pub fn join(s: &zenoh::Session, world: &WorldId, client: ClientId) -> zenoh::liveliness::LivelinessToken {
+    s.liveliness().declare_token(keys::PRESENCE.key(world, Some(client))).wait().expect("token")
+}
+
+/// Queries a server key with parameters.
+pub fn query(s: &zenoh::Session, key: String, params: &str) -> Option<ServerMessage> {
+    let replies = s.get(format!("{key}?{params}")).timeout(Duration::from_secs(5)).wait().ok()?;
+    let reply = replies.recv().ok()?;
+    impact_client_sim::net::decode_server(reply.result().ok()?).ok()
+}
