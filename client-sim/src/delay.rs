@@ -1,6 +1,7 @@
-//! A delay line: items come out when their time is due, in due-time order (ties in arrival
-//! order). Models one direction of a network path with latency, jitter and loss. Bounded: past
-//! `capacity` items, new ones are dropped and counted.
+//! A delay line: items come out when their time is due, in the order they went in. Models one
+//! direction of a stream (Zenoh over TCP) with latency, jitter and loss: jitter moves delivery
+//! times but never reorders, because a stream does not (a message waits behind a slower one
+//! before it, head-of-line). Bounded: past `capacity` items, new ones are dropped and counted.
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -42,6 +43,7 @@ pub struct DelayLine<T> {
     items: Vec<Option<T>>,
     free: Vec<usize>,
     seq: u64,
+    last_due: Option<Instant>,
     capacity: usize,
     /// Items dropped by the loss model.
     pub lost: u64,
@@ -57,6 +59,7 @@ impl<T> DelayLine<T> {
             items: Vec::new(),
             free: Vec::new(),
             seq: 0,
+            last_due: None,
             capacity,
             lost: 0,
             overflow: 0,
@@ -86,7 +89,9 @@ impl<T> DelayLine<T> {
             }
         };
         self.seq += 1;
-        self.heap.push(Reverse((now + Duration::from_secs_f64(delay), self.seq, slot)));
+        let due = (now + Duration::from_secs_f64(delay)).max(self.last_due.unwrap_or(now));
+        self.last_due = Some(due);
+        self.heap.push(Reverse((due, self.seq, slot)));
         true
     }
 
@@ -128,6 +133,22 @@ mod tests {
         assert_eq!(d.pop_due(t0 + Duration::from_millis(50)), Some(1));
         assert_eq!(d.pop_due(t0 + Duration::from_millis(59)), None);
         assert_eq!(d.pop_due(t0 + Duration::from_millis(60)), Some(2));
+    }
+
+    #[test]
+    fn jitter_never_reorders() {
+        let mut d = DelayLine::new(1024);
+        let mut rng = Rng::new(3);
+        let t0 = Instant::now();
+        let link = Link { latency: Duration::from_millis(80), jitter: Duration::from_millis(20), loss: 0.0 };
+        for k in 0..500u32 {
+            d.send(t0 + Duration::from_millis(u64::from(k)), &link, &mut rng, k);
+        }
+        let mut out = Vec::new();
+        while let Some(x) = d.pop_due(t0 + Duration::from_secs(10)) {
+            out.push(x);
+        }
+        assert_eq!(out, (0..500).collect::<Vec<_>>());
     }
 
     #[test]

@@ -1,0 +1,100 @@
+#!/usr/bin/env python3
+"""A client that is not ours: written from PROTOCOL.md alone, with the eclipse-zenoh and
+msgpack packages from PyPI.
+
+It joins a world (a liveliness token), waits for its welcome (its avatar and the server's tick),
+sends one input that sets its avatar's velocity, and prints the acknowledgement and the first
+event batches it sees. Exits 0 when it got the welcome, the ack and at least one event batch.
+
+    pip install eclipse-zenoh msgpack
+    python3 examples/python/client.py --connect tcp/127.0.0.1:7447 --world arena
+"""
+import argparse
+import json
+import sys
+import threading
+import time
+
+import msgpack
+import zenoh
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--connect", default="tcp/127.0.0.1:7447")
+    ap.add_argument("--world", default="arena")
+    ap.add_argument("--client", type=int, default=4242)
+    ap.add_argument("--seconds", type=float, default=10.0)
+    args = ap.parse_args()
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("connect/endpoints", json.dumps([args.connect]))
+    conf.insert_json5("listen/endpoints", "[]")
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+
+    prefix = f"impact/v1/{args.world}"
+    me = args.client
+    state = {"welcome": None, "ack": None, "batches": 0, "events": 0}
+    done = threading.Event()
+
+    def decode(sample):
+        # Every sample is tagged with its encoding: MessagePack by default, JSON on request.
+        raw = sample.payload.to_bytes()
+        if str(sample.encoding).startswith("application/json"):
+            return json.loads(raw)
+        return msgpack.unpackb(raw, raw=False)
+
+    def on_ack(sample):
+        msg = decode(sample)
+        if msg["type"] == "welcome":
+            state["welcome"] = msg
+            print(f"welcome: avatar {msg['avatar']} at tick {msg['tick']} ({msg['tick_hz']} Hz)")
+        elif msg["type"] == "ack":
+            state["ack"] = msg
+            print(f"ack: input {msg['seq']} applied at tick {msg['applied_tick']} (server at {msg['server_tick']})")
+        elif msg["type"] == "reject":
+            print(f"reject: {msg['reason']}: {msg['detail']}")
+
+    def on_events(sample):
+        msg = decode(sample)
+        state["batches"] += 1
+        state["events"] += len(msg["events"])
+        if state["batches"] <= 3:
+            e = msg["events"][0]
+            print(f"events of tick {msg['tick']}: {len(msg['events'])}, first: {e['a']} <-> {e['b']} "
+                  f"{e['phase']} {e['response']} at toi {e['toi']:.4f}, normal {e['normal']}")
+        if state["ack"] and state["batches"] >= 3:
+            done.set()
+
+    ack_sub = session.declare_subscriber(f"{prefix}/client/{me}/ack", on_ack)
+    ev_sub = session.declare_subscriber(f"{prefix}/events", on_events)
+    token = session.liveliness().declare_token(f"{prefix}/presence/{me}")
+
+    deadline = time.time() + args.seconds
+    while state["welcome"] is None and time.time() < deadline:
+        time.sleep(0.05)
+    if state["welcome"] is None or state["welcome"]["avatar"] is None:
+        print("no welcome with an avatar", file=sys.stderr)
+        return 1
+    w = state["welcome"]
+    # The tick we believe the server is at: its tick when it welcomed us, plus the time since.
+    tick = w["tick"] + 2
+    msg = {"type": "input", "client": me, "seq": 1, "tick": tick,
+           "actions": [{"type": "set_velocity", "entity": w["avatar"], "velocity": [2.0, 0.0, 1.0]}]}
+    session.put(f"{prefix}/input/{me}", msgpack.packb(msg), encoding=zenoh.Encoding("application/msgpack"))
+
+    done.wait(max(0.0, deadline - time.time()))
+    ok = state["ack"] is not None and state["batches"] > 0
+    print(f"{'ok' if ok else 'FAILED'}: ack {'received' if state['ack'] else 'missing'}, "
+          f"{state['batches']} event batches ({state['events']} events)")
+    token.undeclare()
+    ack_sub.undeclare()
+    ev_sub.undeclare()
+    session.close()
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
