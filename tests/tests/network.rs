@@ -245,12 +245,11 @@ fn a_stalled_subscriber_does_not_slow_the_tick() {
         .declare_subscriber(format!("impact/v1/{}/**", world))
         .callback(|_| std::thread::sleep(Duration::from_secs(3600)))
         .wait();
-    let started = Instant::now();
     let summary = server.join();
-    let wall = started.elapsed();
     assert_eq!(summary.ticks, 192);
-    // 192 ticks at 64 Hz is 3 s; the tick must keep its schedule.
-    assert!(wall < Duration::from_secs_f64(3.0 + 1.5), "192 ticks took {wall:?}");
+    // 192 ticks at 64 Hz is 3 s: the ticks kept their schedule (shutdown, which waits for zenoh
+    // to close a link to a peer that stopped reading, is not part of it).
+    assert!(summary.run_s < 3.0 + 1.0, "192 ticks took {:.2} s", summary.run_s);
     assert!(summary.tick_ms_p99 < 1000.0 / 64.0, "{summary}");
 }
 

@@ -112,6 +112,8 @@ pub struct Summary {
     pub rollback_depth_max: u32,
     /// Clients seen.
     pub clients: u64,
+    /// Seconds from the start of the first tick to the end of the last (shutdown excluded).
+    pub run_s: f64,
 }
 
 impl std::fmt::Display for Summary {
@@ -490,6 +492,7 @@ impl TickLoop {
                 self.publish_stats();
             }
         }
+        self.summary.run_s = started.elapsed().as_secs_f64();
         // Shutdown: everything still in the window is final now.
         for batch in self.session.finish() {
             self.put(keys::CONFIRMED.key(&self.world, None), &ServerMessage::Confirmed(batch), self.opts.encoding);

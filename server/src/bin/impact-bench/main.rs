@@ -6,6 +6,7 @@ mod plan;
 mod report;
 mod rollback;
 mod scale;
+mod zenoh_rate;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -28,6 +29,8 @@ enum Suite {
     Plan(plan::PlanArgs),
     /// The cost of a rollback of depth d against the plain tick, full and selective.
     Rollback(rollback::RollbackArgs),
+    /// Raw Zenoh pub/sub throughput beside the event rate one subscriber receives from impact.
+    Zenoh(zenoh_rate::ZenohArgs),
 }
 
 fn main() -> Result<()> {
@@ -35,5 +38,6 @@ fn main() -> Result<()> {
         Suite::Scale(a) => scale::run(&a),
         Suite::Plan(a) => plan::run(&a),
         Suite::Rollback(a) => rollback::run(&a),
+        Suite::Zenoh(a) => zenoh_rate::run(&a),
     }
 }
