@@ -16,3 +16,4 @@ pub mod scene;
 pub mod sim;
 pub mod terrain;
 pub mod toi;
+pub mod trials;

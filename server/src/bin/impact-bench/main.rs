@@ -2,6 +2,7 @@
 //! `--json`, one JSON object per line for machines. Peers (rapier) run in the same process on
 //! the same scene, so ratios hold on a noisy shared machine where absolute times do not.
 
+mod accuracy;
 mod plan;
 mod report;
 mod rollback;
@@ -29,6 +30,8 @@ enum Suite {
     Plan(plan::PlanArgs),
     /// The cost of a rollback of depth d against the plain tick, full and selective.
     Rollback(rollback::RollbackArgs),
+    /// Run time against error on scenes with known answers, rapier's CCD beside.
+    Accuracy(accuracy::AccuracyArgs),
     /// Raw Zenoh pub/sub throughput beside the event rate one subscriber receives from impact.
     Zenoh(zenoh_rate::ZenohArgs),
 }
@@ -39,5 +42,6 @@ fn main() -> Result<()> {
         Suite::Plan(a) => plan::run(&a),
         Suite::Rollback(a) => rollback::run(&a),
         Suite::Zenoh(a) => zenoh_rate::run(&a),
+        Suite::Accuracy(a) => accuracy::run(&a),
     }
 }
