@@ -117,7 +117,7 @@ fn rapier_ccd(set: &trials::TrialSet, repeats: u32) -> Errors {
             let p1 = bodies[handles[i]].translation().as_dvec3();
             // Signed distance of the centre from the face plane at the end: the truth's point
             // is on the face and its normal points out of it.
-            let n = truth.normal.abs_diff_eq(DVec3::ZERO, 0.0).then_some(DVec3::X).unwrap_or(truth.normal);
+            let n = truth.normal;
             let n = if n.dot(v) > 0.0 { -n } else { n };
             let end_gap = (p1 - truth.point).dot(n) - w.bodies.radius[i];
             if end_gap < -w.bodies.radius[i] {
