@@ -7,7 +7,6 @@
 use super::report::{json_line, progress, svg_loglog, Series};
 use anyhow::Result;
 use clap::Args;
-use glam::DVec3;
 use impact_server::trials::{self, Errors, Kind, Method, Setup};
 use rapier3d::prelude::*;
 use serde_json::json;
