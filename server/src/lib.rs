@@ -14,6 +14,7 @@ pub mod rollback;
 pub mod runtime;
 pub mod scene;
 pub mod sim;
+pub mod stability;
 pub mod terrain;
 pub mod toi;
 pub mod trials;

@@ -260,6 +260,8 @@ impl Stepper {
 
         // 1. The server's actions, then inputs, then hitscan against the world as it stands at
         //    the start of the tick.
+        let first_new = w.next_entity;
+        let first_tick = w.tick.0 == 0;
         input::apply_system(w, system, out);
         input::apply(w, inputs, out);
         self.lap(&mut clock, |s| &mut s.inputs, &mut stats);
@@ -286,7 +288,10 @@ impl Stepper {
         self.version.clear();
         self.version.resize(n, 0);
         self.moving.clear();
-        self.moving.extend(b.vel.iter().map(|v| *v != DVec3::ZERO));
+        // A body at rest is not re-tested against another at rest, except on its first tick:
+        // the scene's bodies at tick 0 and bodies spawned this tick may have been placed
+        // overlapping something, and nothing else would ever separate them.
+        self.moving.extend(b.vel.iter().zip(&b.id).map(|(v, id)| *v != DVec3::ZERO || first_tick || id.0 >= first_new));
         self.dead.clear();
         self.dead.resize(n, false);
         self.count.clear();

@@ -7,6 +7,7 @@ mod plan;
 mod report;
 mod rollback;
 mod scale;
+mod stability;
 mod zenoh_rate;
 
 use anyhow::Result;
@@ -32,6 +33,9 @@ enum Suite {
     Rollback(rollback::RollbackArgs),
     /// Run time against error on scenes with known answers, rapier's CCD beside.
     Accuracy(accuracy::AccuracyArgs),
+    /// Numerical stress cases (far from the origin, scale, degenerate, speed, pile, energy,
+    /// rollback).
+    Stability(stability::StabilityArgs),
     /// Raw Zenoh pub/sub throughput beside the event rate one subscriber receives from impact.
     Zenoh(zenoh_rate::ZenohArgs),
 }
@@ -43,5 +47,6 @@ fn main() -> Result<()> {
         Suite::Rollback(a) => rollback::run(&a),
         Suite::Zenoh(a) => zenoh_rate::run(&a),
         Suite::Accuracy(a) => accuracy::run(&a),
+        Suite::Stability(a) => stability::run(&a),
     }
 }
