@@ -52,7 +52,14 @@ impl CaseResult {
 pub fn far_from_origin(trials_per_set: u32) -> CaseResult {
     let mut r = CaseResult::new("far_from_origin");
     for offset in [0.0, 1e6, 1e7] {
-        let set = trials::build(&Setup { kind: Kind::SpherePairs, count: trials_per_set, radius: (0.1, 0.5), speed: (1.0, 50.0), offset: DVec3::splat(offset), ..Setup::default() });
+        let set = trials::build(&Setup {
+            kind: Kind::SpherePairs,
+            count: trials_per_set,
+            radius: (0.1, 0.5),
+            speed: (1.0, 50.0),
+            offset: DVec3::splat(offset),
+            ..Setup::default()
+        });
         let e = trials::measure(&set, Method::Analytic, 1);
         r.fig(format!("analytic_toi_err_max_s_at_{offset:e}"), e.toi_err_max_s);
         r.require(!e.non_finite && e.missed_pct == 0.0, format!("analytic at {offset:e}: missed {}%", e.missed_pct));
@@ -60,16 +67,34 @@ pub fn far_from_origin(trials_per_set: u32) -> CaseResult {
     for (kind, method) in [(Kind::SpherePairs, Method::Default), (Kind::SphereBox, Method::Default)] {
         let mut at_origin = 0.0;
         for offset in [0.0, 1e3, 1e5, 1e6, 1e7] {
-            let set = trials::build(&Setup { kind, count: trials_per_set, radius: (0.1, 0.5), speed: (1.0, 50.0), offset: DVec3::splat(offset), ..Setup::default() });
+            let set = trials::build(&Setup {
+                kind,
+                count: trials_per_set,
+                radius: (0.1, 0.5),
+                speed: (1.0, 50.0),
+                offset: DVec3::splat(offset),
+                ..Setup::default()
+            });
             let e = trials::measure(&set, method, 1);
             r.fig(format!("{}_toi_err_max_s_at_{offset:e}", kind.name()), e.toi_err_max_s);
             r.require(!e.non_finite, format!("{} at {offset:e}: non-finite values", kind.name()));
-            r.require(e.missed_pct == 0.0 && e.false_pct == 0.0, format!("{} at {offset:e}: missed {}%, false {}%", kind.name(), e.missed_pct, e.false_pct));
+            r.require(
+                e.missed_pct == 0.0 && e.false_pct == 0.0,
+                format!("{} at {offset:e}: missed {}%, false {}%", kind.name(), e.missed_pct, e.false_pct),
+            );
             if offset == 0.0 {
                 at_origin = e.toi_err_max_s;
             }
             if offset == 1e6 {
-                r.require(e.toi_err_max_s <= 2.0 * at_origin, format!("{} at 1e6 m: error {:e} s > 2 x {:e} s at the origin", kind.name(), e.toi_err_max_s, at_origin));
+                r.require(
+                    e.toi_err_max_s <= 2.0 * at_origin,
+                    format!(
+                        "{} at 1e6 m: error {:e} s > 2 x {:e} s at the origin",
+                        kind.name(),
+                        e.toi_err_max_s,
+                        at_origin
+                    ),
+                );
             }
         }
     }
@@ -87,11 +112,20 @@ pub fn scale(trials_per_set: u32) -> CaseResult {
             if kind == Kind::SphereBox && radius > 0.1 {
                 continue;
             }
-            let set = trials::build(&Setup { kind, count: trials_per_set, radius: (radius, radius), speed: (radius, 40.0 * radius), ..Setup::default() });
+            let set = trials::build(&Setup {
+                kind,
+                count: trials_per_set,
+                radius: (radius, radius),
+                speed: (radius, 40.0 * radius),
+                ..Setup::default()
+            });
             let e = trials::measure(&set, method, 1);
             r.fig(format!("{}_toi_err_max_ticks_r{radius:e}", kind.name()), e.toi_err_max_s / dt);
             r.require(!e.non_finite, format!("r = {radius:e}: non-finite values"));
-            r.require(e.toi_err_max_s <= 1e-4 * dt, format!("{} r = {radius:e}: TOI error {:e} s over 1e-4 of a tick", kind.name(), e.toi_err_max_s));
+            r.require(
+                e.toi_err_max_s <= 1e-4 * dt,
+                format!("{} r = {radius:e}: TOI error {:e} s over 1e-4 of a tick", kind.name(), e.toi_err_max_s),
+            );
             r.require(e.missed_pct == 0.0, format!("{} r = {radius:e}: {}% missed", kind.name(), e.missed_pct));
         }
     }
@@ -104,7 +138,15 @@ fn two_spheres(a: (DVec3, DVec3, f64), b: (DVec3, DVec3, f64)) -> World {
     let mut w = Scene::parse(text, "<pair>").expect("valid").world;
     let class = w.config.classes.by_name("ball").expect("ball");
     for (p, v, r) in [a, b] {
-        let body = crate::sim::world::NewBody { class, shape: crate::sim::shape::Shape::Sphere { radius: r }, pos: p, vel: v, rot: glam::DQuat::IDENTITY, inv_mass: 1.0, owner: None };
+        let body = crate::sim::world::NewBody {
+            class,
+            shape: crate::sim::shape::Shape::Sphere { radius: r },
+            pos: p,
+            vel: v,
+            rot: glam::DQuat::IDENTITY,
+            inv_mass: 1.0,
+            owner: None,
+        };
         w.spawn(body);
     }
     w
@@ -139,17 +181,23 @@ pub fn degenerate() -> CaseResult {
         }
     }
     // Parallel equal velocities: B^2 = 0, never a contact.
-    let (_, events, finite) = run_checked(two_spheres((DVec3::ZERO, x * 5.0, 0.5), (DVec3::new(0.0, 1.5, 0.0), x * 5.0, 0.5)), 64);
+    let (_, events, finite) =
+        run_checked(two_spheres((DVec3::ZERO, x * 5.0, 0.5), (DVec3::new(0.0, 1.5, 0.0), x * 5.0, 0.5)), 64);
     r.require(finite && events == 0, format!("parallel equal velocities: {events} events"));
     // Coincident centres: an overlap with a defined normal, pushed apart.
-    let (w, events, finite) = run_checked(two_spheres((DVec3::ZERO, DVec3::ZERO, 0.5), (DVec3::ZERO, DVec3::ZERO, 0.5)), 4);
+    let (w, events, finite) =
+        run_checked(two_spheres((DVec3::ZERO, DVec3::ZERO, 0.5), (DVec3::ZERO, DVec3::ZERO, 0.5)), 4);
     r.require(finite && events >= 1, "coincident centres: no event or non-finite");
     r.fig("coincident_separation_m", (w.bodies.pos[1] - w.bodies.pos[0]).length());
     // Zero relative velocity, apart: nothing.
-    let (_, events, finite) = run_checked(two_spheres((DVec3::ZERO, DVec3::ZERO, 0.5), (DVec3::new(3.0, 0.0, 0.0), DVec3::ZERO, 0.5)), 16);
+    let (_, events, finite) =
+        run_checked(two_spheres((DVec3::ZERO, DVec3::ZERO, 0.5), (DVec3::new(3.0, 0.0, 0.0), DVec3::ZERO, 0.5)), 16);
     r.require(finite && events == 0, "zero relative velocity: events or non-finite");
     // Near-zero sizes (1 nm), head on at 10 m/s: they meet.
-    let (_, events, finite) = run_checked(two_spheres((DVec3::new(-0.05, 0.0, 0.0), x * 10.0, 1e-9), (DVec3::new(0.05, 0.0, 0.0), -x * 10.0, 1e-9)), 4);
+    let (_, events, finite) = run_checked(
+        two_spheres((DVec3::new(-0.05, 0.0, 0.0), x * 10.0, 1e-9), (DVec3::new(0.05, 0.0, 0.0), -x * 10.0, 1e-9)),
+        4,
+    );
     r.require(finite && events >= 1, format!("nanometre spheres: {events} events"));
     r
 }
@@ -158,7 +206,13 @@ pub fn degenerate() -> CaseResult {
 pub fn speed(trials_per_set: u32) -> CaseResult {
     let mut r = CaseResult::new("speed");
     for s in [1.0, 10.0, 100.0, 1000.0, 10_000.0] {
-        let set = trials::build(&Setup { kind: Kind::BulletWall, count: trials_per_set, radius: (0.05, 0.05), speed: (s, s), ..Setup::default() });
+        let set = trials::build(&Setup {
+            kind: Kind::BulletWall,
+            count: trials_per_set,
+            radius: (0.05, 0.05),
+            speed: (s, s),
+            ..Setup::default()
+        });
         let e = trials::measure(&set, Method::Default, 1);
         r.fig(format!("missed_pct_at_{s}_mps"), e.missed_pct);
         r.require(!e.non_finite && e.missed_pct == 0.0, format!("{s} m/s: {}% missed", e.missed_pct));
@@ -194,6 +248,7 @@ pub fn pile(n: u32, ticks: u32) -> CaseResult {
     let mut st = Stepper::new(Plan::for_world(&w), false);
     let mut out = TickOutput::default();
     let (mut worst_pen, mut worst_speed, mut finite, mut left) = (0.0f64, 0.0f64, true, 0u32);
+    let (mut worst_wall, mut worst_pair, mut worst_tick) = (0.0f64, 0.0f64, 0u32);
     let mut pairs = Vec::new();
     let mut grid = crate::broadphase::Broadphase::new(crate::broadphase::BroadphaseKind::Grid);
     for k in 0..ticks {
@@ -209,19 +264,33 @@ pub fn pile(n: u32, ticks: u32) -> CaseResult {
         // Penetration: against the floor and walls directly, between balls through the grid
         // (every 10 ticks: it is the expensive check, and piles change slowly).
         for p in &b.pos {
-            worst_pen = worst_pen.max(radius - p.y).max(p.x.abs() + radius - side / 2.0).max(p.z.abs() + radius - side / 2.0);
+            let pen = (radius - p.y).max(p.x.abs() + radius - side / 2.0).max(p.z.abs() + radius - side / 2.0);
+            if pen > worst_wall {
+                worst_wall = pen;
+            }
         }
         if k % 10 == 9 || k + 1 == ticks {
-            let boxes: Vec<crate::sim::shape::Aabb> =
-                b.pos.iter().map(|p| crate::sim::shape::Aabb { min: *p - DVec3::splat(radius), max: *p + DVec3::splat(radius) }).collect();
+            let boxes: Vec<crate::sim::shape::Aabb> = b
+                .pos
+                .iter()
+                .map(|p| crate::sim::shape::Aabb { min: *p - DVec3::splat(radius), max: *p + DVec3::splat(radius) })
+                .collect();
             grid.pairs(&boxes, &mut pairs);
             for &(i, j) in &pairs {
-                worst_pen = worst_pen.max(2.0 * radius - (b.pos[i as usize] - b.pos[j as usize]).length());
+                let pen = 2.0 * radius - (b.pos[i as usize] - b.pos[j as usize]).length();
+                if pen > worst_pair {
+                    worst_pair = pen;
+                    worst_tick = k;
+                }
             }
         }
     }
+    worst_pen = worst_pen.max(worst_wall).max(worst_pair);
     r.fig("ticks", f64::from(ticks));
     r.fig("max_penetration_pct_of_radius", 100.0 * worst_pen.max(0.0) / radius);
+    r.fig("max_wall_penetration_pct", 100.0 * worst_wall.max(0.0) / radius);
+    r.fig("max_pair_penetration_pct", 100.0 * worst_pair.max(0.0) / radius);
+    r.fig("worst_pair_tick", f64::from(worst_tick));
     r.fig("max_speed_mps", worst_speed);
     r.fig("bodies_outside", f64::from(left));
     r.require(finite, "non-finite values");
@@ -234,9 +303,13 @@ pub fn pile(n: u32, ticks: u32) -> CaseResult {
 /// An elastic box of bouncing spheres for `ticks` ticks: kinetic energy drift under 0.1 %.
 pub fn elastic(n: u32, ticks: u32) -> CaseResult {
     let mut r = CaseResult::new("elastic");
-    let text = std::fs::read_to_string(Scene::bundled_path("arena")).expect("arena scene").replace("count = 2000", &format!("count = {n}"));
+    let text = std::fs::read_to_string(Scene::bundled_path("arena"))
+        .expect("arena scene")
+        .replace("count = 2000", &format!("count = {n}"));
     let scene = Scene::parse(&text, "<elastic>").expect("valid");
-    let energy = |w: &World| w.bodies.vel.iter().zip(&w.bodies.inv_mass).map(|(v, im)| 0.5 * v.length_squared() / im).sum::<f64>();
+    let energy = |w: &World| {
+        w.bodies.vel.iter().zip(&w.bodies.inv_mass).map(|(v, im)| 0.5 * v.length_squared() / im).sum::<f64>()
+    };
     let mut w = scene.world.clone();
     let e0 = energy(&w);
     let mut st = Stepper::new(Plan::for_world(&w), false);
@@ -261,7 +334,8 @@ pub fn rollback_stress(ticks: u32) -> CaseResult {
     let text = std::fs::read_to_string(Scene::bundled_path("arena")).expect("arena").replace("count = 2000", "count = 150")
         + "\n[[body]]\nclass = \"player\"\nshape = { type = \"sphere\", radius_m = 0.5 }\nposition = [0.0, 10.0, 0.0]\nowner = 1\n";
     let scene = Scene::parse(&text, "<rollback>").expect("valid");
-    let player = *scene.world.bodies.id.last().expect("player");
+    let b = &scene.world.bodies;
+    let player = b.id[b.owner.iter().position(|o| *o == Some(ClientId(1))).expect("the player")];
     let mut cfg = RollbackConfig::for_world(&scene.world);
     cfg.window_ticks = 17;
     let mut on_time = Session::new(scene.world.clone(), Plan::for_world(&scene.world), cfg.clone());
@@ -270,13 +344,16 @@ pub fn rollback_stress(ticks: u32) -> CaseResult {
         client: ClientId(1),
         seq: t,
         tick: Tick(t),
-        actions: vec![Action::SetVelocity { entity: player, velocity: [(f64::from(t % 7) - 3.0) * 2.0, f64::from(t % 3) - 1.0, (f64::from(t % 5) - 2.0) * 2.0] }],
+        actions: vec![Action::SetVelocity {
+            entity: player,
+            velocity: [(f64::from(t % 7) - 3.0) * 2.0, f64::from(t % 3) - 1.0, (f64::from(t % 5) - 2.0) * 2.0],
+        }],
     };
-    let (mut same, mut finite, mut confirmed, mut depth_max) = (true, true, 0u64, 0u32);
+    let (mut same, mut finite, mut confirmed, mut depth_max, mut refused) = (true, true, 0u64, 0u32, 0u32);
     for t in 0..ticks {
-        let _ = on_time.submit(input(t));
+        refused += u32::from(on_time.submit(input(t)).is_err());
         if t >= 16 {
-            let _ = late.submit(input(t - 16));
+            refused += u32::from(late.submit(input(t - 16)).is_err());
         }
         let a = on_time.advance();
         let b = late.advance();
@@ -284,13 +361,15 @@ pub fn rollback_stress(ticks: u32) -> CaseResult {
         finite &= trials::finite(on_time.world(), &a.events) && trials::finite(late.world(), &b.events);
         if let (Some(x), Some(y)) = (&a.confirmed, &b.confirmed) {
             confirmed += 1;
-            let strip = |v: &[impact_protocol::CollisionEvent]| v.iter().map(|e| (e.key(), e.toi.to_bits(), e.point.map(f64::to_bits))).collect::<Vec<_>>();
+            let strip = |v: &[impact_protocol::CollisionEvent]| {
+                v.iter().map(|e| (e.key(), e.toi.to_bits(), e.point.map(f64::to_bits))).collect::<Vec<_>>()
+            };
             same &= x.tick == y.tick && strip(&x.events) == strip(&y.events);
         }
     }
     // The late session has not yet seen the last 16 ticks' inputs: give them and let both run on.
     for t in ticks.saturating_sub(16)..ticks {
-        let _ = late.submit(input(t));
+        refused += u32::from(late.submit(input(t)).is_err());
     }
     let _ = late.advance();
     let _ = on_time.advance();
@@ -299,6 +378,7 @@ pub fn rollback_stress(ticks: u32) -> CaseResult {
     r.fig("rollback_depth_max", f64::from(depth_max));
     r.fig("confirmed_ticks_compared", confirmed as f64);
     r.require(finite, "non-finite values");
+    r.require(refused == 0, format!("{refused} inputs refused"));
     r.require(depth_max == 16, format!("rollbacks reached depth {depth_max}, expected 16"));
     r.require(same, "the late session diverged from the on-time one");
     r

@@ -51,7 +51,8 @@ pub fn run(a: &StabilityArgs) -> Result<()> {
             failed.push(r.case);
         }
         if a.json {
-            let mut v = json!({"suite": "stability", "case": r.case, "pass": r.pass, "seconds": secs, "detail": r.detail});
+            let mut v =
+                json!({"suite": "stability", "case": r.case, "pass": r.pass, "seconds": secs, "detail": r.detail});
             for (k, x) in &r.figures {
                 v[k] = json!(x);
             }
