@@ -22,11 +22,14 @@ pub struct StabilityArgs {
     pile_ticks: u32,
 }
 
+/// A case to run.
+type Case<'a> = Box<dyn Fn() -> CaseResult + 'a>;
+
 /// Runs every case; fails if any bound is missed.
 pub fn run(a: &StabilityArgs) -> Result<()> {
     println!("stability: numerical stress cases (NaN/infinity checked every tick in every case)");
     println!("{:<18} {:<6} {:>8}  figures", "case", "pass", "seconds");
-    let cases: Vec<(&str, Box<dyn Fn() -> CaseResult>)> = vec![
+    let cases: Vec<(&str, Case<'_>)> = vec![
         ("far from origin", Box::new(|| stability::far_from_origin(300))),
         ("scale", Box::new(|| stability::scale(200))),
         ("degenerate", Box::new(stability::degenerate)),
