@@ -27,6 +27,9 @@ pub enum BroadphaseKind {
     SweepAndPrune,
     /// Uniform grid / spatial hash.
     Grid,
+    /// parry's BVH, rebuilt every tick (for comparison: the plan never picks it for dynamic
+    /// bodies; it serves static geometry).
+    Bvh,
 }
 
 impl BroadphaseKind {
@@ -36,6 +39,7 @@ impl BroadphaseKind {
             BroadphaseKind::BruteForce => "brute",
             BroadphaseKind::SweepAndPrune => "sap",
             BroadphaseKind::Grid => "grid",
+            BroadphaseKind::Bvh => "bvh",
         }
     }
 }
@@ -67,6 +71,7 @@ impl Broadphase {
             BroadphaseKind::BruteForce => brute::pairs(aabbs, out),
             BroadphaseKind::SweepAndPrune => self.sap.pairs(aabbs, out),
             BroadphaseKind::Grid => self.grid.pairs(aabbs, out),
+            BroadphaseKind::Bvh => bvh_pairs(aabbs, out),
         }
         // Methods emit in their own order (sweep and prune's depends on history). Nothing
         // downstream depends on it: impacts resolve in a total (time, pair, version) order and
@@ -83,6 +88,24 @@ impl Broadphase {
             _ => brute::query(aabbs, query, out),
         }
         out.sort_unstable();
+    }
+}
+
+/// Every overlapping pair through a BVH built over the boxes: each box queries the tree.
+fn bvh_pairs(aabbs: &[Aabb], out: &mut Vec<(u32, u32)>) {
+    if aabbs.len() < 2 {
+        return;
+    }
+    let leaves: Vec<_> = aabbs.iter().map(outward).collect();
+    let bvh = parry::partitioning::Bvh::from_leaves(parry::partitioning::BvhBuildStrategy::Binned, &leaves);
+    for (i, b) in aabbs.iter().enumerate() {
+        let q = outward(b);
+        for j in bvh.intersect_aabb(&q) {
+            // The f32 boxes are rounded outwards: confirm in f64.
+            if (j as usize) > i && aabbs[j as usize].overlaps(b) {
+                out.push((i as u32, j));
+            }
+        }
     }
 }
 
@@ -177,17 +200,21 @@ mod tests {
             let mut sap = Broadphase::new(BroadphaseKind::SweepAndPrune);
             let mut grid = Broadphase::new(BroadphaseKind::Grid);
             let mut brute = Broadphase::new(BroadphaseKind::BruteForce);
-            let (mut a, mut b, mut c) = (Vec::new(), Vec::new(), Vec::new());
+            let mut bvh = Broadphase::new(BroadphaseKind::Bvh);
+            let (mut a, mut b, mut c, mut d) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
             for aabbs in &frames {
                 brute.pairs(aabbs, &mut a);
                 sap.pairs(aabbs, &mut b);
                 grid.pairs(aabbs, &mut c);
+                bvh.pairs(aabbs, &mut d);
                 // Each method has its own order; the sets must be equal.
                 a.sort_unstable();
                 b.sort_unstable();
                 c.sort_unstable();
+                d.sort_unstable();
                 prop_assert_eq!(&a, &b, "sap");
                 prop_assert_eq!(&a, &c, "grid");
+                prop_assert_eq!(&a, &d, "bvh");
                 if let Some(q) = aabbs.first() {
                     let q = q.inflated(3.0);
                     let (mut qa, mut qc) = (Vec::new(), Vec::new());

@@ -152,6 +152,7 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
     println!("{:>8} {:<22} {:>12} {:>10} {:>12}", "bodies", "engine", "ms/tick", "pairs", "vs rapier");
     let mut growth: Vec<(f64, f64)> = Vec::new();
     let mut rapier_points: Vec<(f64, f64)> = Vec::new();
+    let mut variant_points: std::collections::BTreeMap<&str, Vec<(f64, f64)>> = std::collections::BTreeMap::new();
     for &n in &a.bodies {
         progress(&format!("{n} bodies: building"));
         let scene = scene(n)?;
@@ -197,13 +198,15 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
             );
         }
         if a.variants {
-            let mut kinds = vec![BroadphaseKind::SweepAndPrune, BroadphaseKind::Grid];
+            let mut kinds = vec![BroadphaseKind::SweepAndPrune, BroadphaseKind::Grid, BroadphaseKind::Bvh];
+            // Brute force is O(n^2): 10^10 box tests a tick at 100k bodies. Run it to 20k.
             if n <= 20_000 {
                 kinds.push(BroadphaseKind::BruteForce);
             }
             for kind in kinds {
                 progress(&format!("{n} bodies: broadphase {}", kind.name()));
                 let m = run_impact(world, Plan { broadphase: kind, ..plan.clone() }, a.warmup.min(5), a.ticks.min(30));
+                variant_points.entry(kind.name()).or_default().push((f64::from(n), m.ms));
                 println!("{n:>8} {:<22} {:>12.4} {:>10}", format!("impact broadphase={}", kind.name()), m.ms, m.pairs);
                 if a.json {
                     json_line(
@@ -251,4 +254,12 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Least-squares slope of log(ms) on log(n): 1 is linear.
+fn growth_exponent(points: &[(f64, f64)]) -> f64 {
+    let pts: Vec<(f64, f64)> = points.iter().map(|(n, ms)| (n.ln(), ms.ln())).collect();
+    let mx = pts.iter().map(|p| p.0).sum::<f64>() / pts.len() as f64;
+    let my = pts.iter().map(|p| p.1).sum::<f64>() / pts.len() as f64;
+    pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum::<f64>() / pts.iter().map(|p| (p.0 - mx).powi(2)).sum::<f64>()
 }
