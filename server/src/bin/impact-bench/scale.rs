@@ -230,13 +230,19 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
             }
         }
     }
+    for (name, pts) in &variant_points {
+        if pts.len() >= 2 {
+            let k = growth_exponent(pts);
+            println!("broadphase {name}: growth exponent k = {k:.2} over {} sizes", pts.len());
+            if a.json {
+                json_line(
+                    &json!({"suite": "scale", "engine": "impact", "variant": format!("broadphase={name}"), "growth_exponent": k}),
+                );
+            }
+        }
+    }
     if growth.len() >= 2 {
-        // Least-squares slope of log(ms) on log(n): 1 is linear.
-        let pts: Vec<(f64, f64)> = growth.iter().map(|(n, ms)| (n.ln(), ms.ln())).collect();
-        let mx = pts.iter().map(|p| p.0).sum::<f64>() / pts.len() as f64;
-        let my = pts.iter().map(|p| p.1).sum::<f64>() / pts.len() as f64;
-        let slope = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum::<f64>()
-            / pts.iter().map(|p| (p.0 - mx).powi(2)).sum::<f64>();
+        let slope = growth_exponent(&growth);
         println!("growth exponent (ms ~ n^k, least squares): k = {slope:.2}");
         if let Some(path) = &a.svg {
             let mut series = vec![Series { name: "impact".into(), points: growth.clone() }];
