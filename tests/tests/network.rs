@@ -288,5 +288,10 @@ fn state_and_history_queries_answer() {
         }
         other => panic!("{other:?}"),
     }
+    // Ticks that left the window are an error, not an empty history.
+    match query(&s, impact_protocol::keys::QUERY_HISTORY.key(&world, None), "from=1;to=2") {
+        Some(ServerMessage::QueryError(e)) => assert!(e.detail.contains("not all in the history"), "{e:?}"),
+        other => panic!("{other:?}"),
+    }
     drop(server);
 }

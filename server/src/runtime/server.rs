@@ -779,6 +779,17 @@ impl TickLoop {
             }
         } else {
             match (parse("from").transpose(), parse("to").transpose()) {
+                (Ok(Some(from)), Ok(Some(to))) if from < self.session.oldest_accepted() || to >= self.session.now() => {
+                    ServerMessage::QueryError(QueryError {
+                        detail: format!(
+                            "ticks {}..={} are not all in the history (held: {}..{}; older ticks were confirmed)",
+                            from.0,
+                            to.0,
+                            self.session.oldest_accepted(),
+                            self.session.now()
+                        ),
+                    })
+                }
                 (Ok(Some(from)), Ok(Some(to))) if from <= to && to.0 - from.0 <= 10_000 => {
                     let events = (from.0..=to.0)
                         .filter_map(|t| self.session.frame(Tick(t)))
