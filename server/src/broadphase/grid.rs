@@ -65,15 +65,6 @@ fn radix_sort_high(v: &mut Vec<u64>, scratch: &mut Vec<u64>, bits: u32) {
     }
 }
 
-#[inline]
-fn overlap(a: &Aabb, b: &Aabb) -> bool {
-    a.min.x <= b.max.x
-        && b.min.x <= a.max.x
-        && a.min.y <= b.max.y
-        && b.min.y <= a.max.y
-        && a.min.z <= b.max.z
-        && b.min.z <= a.max.z
-}
 
 impl Grid {
     /// Cell coordinates of a point (may be negative or past the grid for query points).
@@ -172,7 +163,7 @@ impl Grid {
             // Own cell (later entries) and the next cell of the row.
             let mut q = p + 1;
             while q < n && self.keys[q] <= key + 1 {
-                if overlap(&a, &self.boxes[q]) {
+                if a.overlaps(&self.boxes[q]) {
                     push(out, body, self.order[q]);
                 }
                 q += 1;
@@ -186,7 +177,7 @@ impl Grid {
                 }
                 cursor[r] = c;
                 while c < n && self.keys[c] <= hi {
-                    if overlap(&a, &self.boxes[c]) {
+                    if a.overlaps(&self.boxes[c]) {
                         push(out, body, self.order[c]);
                     }
                     c += 1;
@@ -215,7 +206,7 @@ impl Grid {
                 let last = self.key([hi[0], y, z]);
                 let mut c = self.keys.partition_point(|&k| k < first);
                 while c < self.keys.len() && self.keys[c] <= last {
-                    if overlap(&self.boxes[c], query) {
+                    if self.boxes[c].overlaps(query) {
                         out.push(self.order[c]);
                     }
                     c += 1;
