@@ -883,9 +883,15 @@ impl Stepper {
         for _ in 0..SETTLE_PASSES {
             let mut moved = false;
             for k in 0..self.candidates.len() {
-                let Cand { a, b: p, .. } = self.candidates[k];
+                let Cand { a, b: p, end, end_valid } = self.candidates[k];
                 let i = a as usize;
                 if self.dead[i] || matches!(p, Partner::Body(j) if self.dead[j as usize]) {
+                    continue;
+                }
+                // A pair neither of whose paths changed keeps the end contact found with its time
+                // of impact (same positions, same kernel): clear of the slop there, nothing to do.
+                let unchanged = end_valid && self.version[i] == 0 && !matches!(p, Partner::Body(j) if self.version[j as usize] != 0);
+                if unchanged && end.is_none_or(|c| c.depth <= slop) {
                     continue;
                 }
                 let (ca, cb) = self.class_pair(w, a, p);
