@@ -65,7 +65,6 @@ fn radix_sort_high(v: &mut Vec<u64>, scratch: &mut Vec<u64>, bits: u32) {
     }
 }
 
-
 impl Grid {
     /// Cell coordinates of a point (may be negative or past the grid for query points).
     #[inline]

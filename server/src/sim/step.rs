@@ -890,7 +890,9 @@ impl Stepper {
                 }
                 // A pair neither of whose paths changed keeps the end contact found with its time
                 // of impact (same positions, same kernel): clear of the slop there, nothing to do.
-                let unchanged = end_valid && self.version[i] == 0 && !matches!(p, Partner::Body(j) if self.version[j as usize] != 0);
+                let unchanged = end_valid
+                    && self.version[i] == 0
+                    && !matches!(p, Partner::Body(j) if self.version[j as usize] != 0);
                 if unchanged && end.is_none_or(|c| c.depth <= slop) {
                     continue;
                 }
