@@ -8,6 +8,7 @@ use impact_server::offline;
 use impact_server::rollback::{RollbackConfig, StalePolicy};
 use impact_server::runtime::{self, ServerOptions};
 use impact_server::scene::Scene;
+use impact_server::sim::world::window_ticks;
 use impact_server::sim::Plan;
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
@@ -88,31 +89,24 @@ fn main() -> Result<()> {
     }
     if args.tick_hz.is_some() || args.rollback_ms.is_some() {
         let cfg = Arc::make_mut(&mut scene.world.config);
+        // The window is a duration: keep it when only the tick rate changes.
+        let ms = args
+            .rollback_ms
+            .unwrap_or_else(|| (f64::from(cfg.window_ticks) * 1000.0 / f64::from(cfg.tick_hz)).round() as u32);
         if let Some(hz) = args.tick_hz {
             if !(1..=1000).contains(&hz) {
                 bail!("--tick-hz {hz} must be in 1..=1000");
             }
-            let ms = cfg.window_ticks as f64 * 1000.0 / cfg.tick_hz as f64;
             cfg.tick_hz = hz;
             cfg.dt = 1.0 / f64::from(hz);
-            cfg.window_ticks = (ms * f64::from(hz) / 1000.0).ceil() as u32;
         }
-        if let Some(ms) = args.rollback_ms {
-            cfg.window_ticks = ((u64::from(ms) * u64::from(cfg.tick_hz)).div_ceil(1000)) as u32;
-        }
+        cfg.window_ticks = window_ticks(ms, cfg.tick_hz);
     }
     if !args.offline {
         return serve(scene, &args);
     }
     let plan = if args.general { Plan::general(&scene.world) } else { Plan::for_world(&scene.world) };
-    println!(
-        "scene {} ({}): {} dynamic, {} static bodies{}",
-        scene.name,
-        args.scene.display(),
-        scene.world.bodies.len(),
-        scene.world.statics.id.len(),
-        if scene.world.statics.terrain.is_some() { ", terrain" } else { "" }
-    );
+    println!("{}", describe(&scene, &args));
     println!("{plan}");
     let inputs = match &args.inputs {
         Some(p) => offline::read_inputs(p)?,
@@ -176,16 +170,7 @@ fn serve(scene: Scene, args: &Args) -> Result<()> {
     rollback.selective = args.selective;
     rollback.self_check_ticks = args.self_check;
     rollback.stale = if args.stale == "clamp" { StalePolicy::Clamp } else { StalePolicy::Reject };
-    let cfg = &scene.world.config;
-    println!(
-        "impact-server: world {} ({}), {} dynamic and {} static bodies, {} Hz, rollback window {} ticks",
-        scene.name,
-        args.scene.display(),
-        scene.world.bodies.len(),
-        scene.world.statics.id.len(),
-        cfg.tick_hz,
-        cfg.window_ticks
-    );
+    println!("impact-server: {}", describe(&scene, args));
     println!("{plan}");
     let opts = ServerOptions {
         listen: if args.zenoh_config.is_some() && args.listen == ["tcp/127.0.0.1:7447"] {
@@ -211,4 +196,19 @@ fn serve(scene: Scene, args: &Args) -> Result<()> {
     let summary = handle.join();
     println!("stopped: final confirmed events published\n{summary}");
     Ok(())
+}
+
+/// One line about the scene: name, file, bodies, tick rate and rollback window.
+fn describe(scene: &Scene, args: &Args) -> String {
+    let w = &scene.world;
+    format!(
+        "world {} ({}): {} dynamic and {} static bodies{}, {} Hz, rollback window {} ticks",
+        scene.name,
+        args.scene.display(),
+        w.bodies.len(),
+        w.statics.id.len(),
+        if w.statics.terrain.is_some() { ", terrain" } else { "" },
+        w.config.tick_hz,
+        w.config.window_ticks
+    )
 }

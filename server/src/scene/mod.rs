@@ -419,7 +419,7 @@ impl Builder {
         };
 
         let dt = 1.0 / f64::from(w.tick_hz);
-        let window_ticks = ((u64::from(w.rollback_ms) * u64::from(w.tick_hz)).div_ceil(1000)) as u32;
+        let window_ticks = crate::sim::world::window_ticks(w.rollback_ms, w.tick_hz);
         let config = SimConfig {
             tick_hz: w.tick_hz,
             dt,

@@ -5,7 +5,6 @@
 
 use crate::broadphase::Broadphase;
 use crate::narrow::{self, Contact, Kernel};
-use crate::query::ray;
 use crate::sim::input::{self, TickInput};
 use crate::sim::plan::Plan;
 use crate::sim::shape::{Aabb, Shape};
@@ -1255,7 +1254,3 @@ fn end_without_contact(
         status: EventStatus::Provisional,
     }
 }
-
-/// Ray results for the tick are computed by [`input::apply`] through [`ray`].
-#[allow(unused_imports)]
-use ray as _ray_doc;

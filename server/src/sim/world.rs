@@ -141,6 +141,12 @@ pub struct SimConfig {
     pub projectile_class: Option<ClassId>,
 }
 
+/// Ticks of history a rollback window of `rollback_ms` holds at `tick_hz` (rounded up, so the
+/// window is never shorter than asked).
+pub fn window_ticks(rollback_ms: u32, tick_hz: u32) -> u32 {
+    (u64::from(rollback_ms) * u64::from(tick_hz)).div_ceil(1000) as u32
+}
+
 /// Static geometry and terrain: immutable for the run, shared by every snapshot.
 #[derive(Debug)]
 pub struct StaticWorld {
