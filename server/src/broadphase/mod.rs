@@ -201,18 +201,24 @@ mod tests {
             let mut grid = Broadphase::new(BroadphaseKind::Grid);
             let mut brute = Broadphase::new(BroadphaseKind::BruteForce);
             let mut bvh = Broadphase::new(BroadphaseKind::Bvh);
-            let (mut a, mut b, mut c, mut d) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+            let mut cursors = grid::Grid::default();
+            cursors.sparse_only = true;
+            let (mut a, mut b, mut c, mut d, mut e) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
             for aabbs in &frames {
                 brute.pairs(aabbs, &mut a);
                 sap.pairs(aabbs, &mut b);
                 grid.pairs(aabbs, &mut c);
                 bvh.pairs(aabbs, &mut d);
+                e.clear();
+                cursors.pairs(aabbs, &mut e);
                 // Each method has its own order; the sets must be equal.
                 a.sort_unstable();
                 b.sort_unstable();
                 c.sort_unstable();
                 d.sort_unstable();
+                e.sort_unstable();
                 prop_assert_eq!(&a, &b, "sap");
+                prop_assert_eq!(&a, &e, "grid (cursors)");
                 prop_assert_eq!(&a, &c, "grid");
                 prop_assert_eq!(&a, &d, "bvh");
                 if let Some(q) = aabbs.first() {
