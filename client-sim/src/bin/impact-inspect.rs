@@ -260,10 +260,18 @@ fn tap(a: &Args, world: Option<WorldId>, f: &Filter) -> Result<()> {
         )),
         None => None,
     };
+    // Ctrl-C ends the tap like `--seconds` does, so a recording is flushed and whole.
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let flag = stop.clone();
+    ctrlc::set_handler(move || flag.store(true, std::sync::atomic::Ordering::SeqCst))
+        .context("installing the Ctrl-C handler")?;
     let started = Instant::now();
     let mut out = std::io::stdout().lock();
+    let mut stdout_open = true;
     loop {
-        if a.seconds.is_some_and(|s| started.elapsed().as_secs_f64() >= s) {
+        if stop.load(std::sync::atomic::Ordering::SeqCst)
+            || a.seconds.is_some_and(|s| started.elapsed().as_secs_f64() >= s)
+        {
             break;
         }
         let Ok((key, bytes, tag)) = rx.recv_timeout(Duration::from_millis(200)) else { continue };
@@ -277,10 +285,23 @@ fn tap(a: &Args, world: Option<WorldId>, f: &Filter) -> Result<()> {
         if let Some(r) = record.as_mut() {
             writeln!(r, "{}", serde_json::json!({"world": w, "message": msg}))?;
         }
-        show(&mut out, &w, &msg, f, a.json)?;
+        if stdout_open {
+            match show(&mut out, &w, &msg, f, a.json) {
+                Ok(()) => {}
+                // The reader went away (`| head`): a recording carries on without it, like
+                // `tee -p`; a plain tap has nothing left to do.
+                Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => {
+                    stdout_open = false;
+                    if record.is_none() {
+                        break;
+                    }
+                }
+                Err(e) => return Err(e.into()),
+            }
+        }
     }
     if let Some(mut r) = record {
-        r.flush()?;
+        r.flush().context("writing the recording")?;
     }
     drop(subs);
     let _ = session.close().wait();
