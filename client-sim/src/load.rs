@@ -91,10 +91,28 @@ struct Client {
     view: View,
 }
 
+/// How far (ticks) a client's clock may drift from the ticks of the batches it receives before
+/// it re-anchors. Both carry the same downlink delay, so they agree to within the jitter (80 +- 20
+/// ms is +-1.3 ticks at 64 Hz); a larger gap means the server's tick fell behind wall time (it
+/// drops a backlog after a stall rather than running fast), and a client that kept its old clock
+/// would stamp every later input in the future.
+pub const RESYNC_TICKS: u32 = 4;
+
 impl Client {
     fn tick_estimate(&self, now: Instant) -> Option<Tick> {
         let (tick, at, hz) = self.clock?;
         Some(Tick(tick.0 + ((now - at).as_secs_f64() * f64::from(hz)) as u32))
+    }
+
+    /// A batch for `tick` arrived `now`: re-anchor the clock if it has drifted. Returns whether
+    /// it did.
+    fn observe(&mut self, tick: Tick, now: Instant) -> bool {
+        let (Some(est), Some((_, _, hz))) = (self.tick_estimate(now), self.clock) else { return false };
+        if est.0.abs_diff(tick.0) > RESYNC_TICKS {
+            self.clock = Some((tick, now, hz));
+            return true;
+        }
+        false
     }
 }
 
@@ -241,6 +259,11 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
                 Inbound::Stats(s) => {
                     r.server_tick_ms_p99 = s.tick_ms_p99;
                     r.server_overruns = s.overruns;
+                    // Once a second every client hears the server's tick, even one that no
+                    // event concerns.
+                    for c in clients.iter_mut() {
+                        r.clock_resyncs += u64::from(c.observe(s.tick, now));
+                    }
                 }
                 Inbound::Msg(k, msg) => {
                     let c = &mut clients[k];
@@ -255,6 +278,7 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
                             c.next_action = now + period.mul_f64(k as f64 / n.max(1) as f64);
                         }
                         ServerMessage::Ack(a) => {
+                            r.clock_resyncs += u64::from(c.observe(a.server_tick, now));
                             if let Some(sent) = c.sent.remove(&a.seq) {
                                 r.acks += 1;
                                 let _ = latency.record((now - sent).as_micros().max(1) as u64);
@@ -265,6 +289,7 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
                             *r.rejects.entry(j.reason.name().to_string()).or_insert(0) += 1;
                         }
                         ServerMessage::Events(b) => {
+                            r.clock_resyncs += u64::from(c.observe(b.tick, now));
                             r.events_received += b.events.len() as u64;
                             c.view.events(&b);
                         }
@@ -358,4 +383,39 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
     }
     let _ = std::io::stderr().flush();
     Ok(r)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn client(anchor: Tick, at: Instant) -> Client {
+        Client {
+            id: ClientId(1),
+            behaviour: Behaviour::Wander,
+            avatar: Some(EntityId(7)),
+            clock: Some((anchor, at, 64)),
+            seq: 0,
+            next_action: at,
+            sent: BTreeMap::new(),
+            view: View::default(),
+        }
+    }
+
+    /// A server that stalled and dropped its backlog is behind the client's clock: the first
+    /// batch the client hears re-anchors it, so its inputs stop landing in the future. Jitter
+    /// within the bound leaves the clock alone.
+    #[test]
+    fn a_stalled_server_re_anchors_the_clock_and_jitter_does_not() {
+        let t0 = Instant::now();
+        let mut c = client(Tick(100), t0);
+        let now = t0 + Duration::from_secs(1); // the clock says tick 164
+        assert_eq!(c.tick_estimate(now), Some(Tick(164)));
+        assert!(!c.observe(Tick(164 - RESYNC_TICKS), now), "jitter within the bound");
+        assert_eq!(c.tick_estimate(now), Some(Tick(164)));
+        // The server lost 0.4 s to a stall: its batches say 138.
+        assert!(c.observe(Tick(138), now));
+        assert_eq!(c.tick_estimate(now), Some(Tick(138)));
+        assert_eq!(c.tick_estimate(now + Duration::from_millis(500)), Some(Tick(170)));
+    }
 }

@@ -52,6 +52,9 @@ pub struct Report {
     pub server_tick_ms_p99: f64,
     /// The server's last reported overruns.
     pub server_overruns: u64,
+    /// Times a client's tick clock was re-anchored because the server's batches showed it more
+    /// than [`crate::load::RESYNC_TICKS`] off (the server stalled, or dropped a backlog).
+    pub clock_resyncs: u64,
     /// Latency histogram: `(upper bound ms, count)` per 5 ms bucket.
     pub latency_histogram: Vec<(f64, u64)>,
 }
@@ -86,7 +89,11 @@ impl std::fmt::Display for Report {
             self.correction_depth_max
         )?;
         writeln!(f, "  views    {} confirmed ticks matched, {} differed", self.views_matched, self.views_mismatched)?;
-        write!(f, "  server   tick p99 {:.3} ms, overruns {}", self.server_tick_ms_p99, self.server_overruns)
+        write!(
+            f,
+            "  server   tick p99 {:.3} ms, overruns {} | client clocks resynced {}",
+            self.server_tick_ms_p99, self.server_overruns, self.clock_resyncs
+        )
     }
 }
 

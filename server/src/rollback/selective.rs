@@ -48,8 +48,32 @@ fn entities(input: &TickInput, frame: &Frame, out: &mut BTreeSet<EntityId>) {
     }
 }
 
-/// Grows `reach` with the old run's neighbours and inputs, to a fixpoint.
-fn grow(s: &Session, from: Tick, now: Tick, reach: &mut BTreeSet<EntityId>) {
+/// Boxes sorted along x, for "does this box overlap any of them" in O(log n + nearby) instead
+/// of a scan of them all (the reach set can hold hundreds of bodies, tested against every body
+/// of every tick in the interval).
+struct BoxSet {
+    boxes: Vec<Aabb>,
+    widest: f64,
+}
+
+impl BoxSet {
+    fn new(mut boxes: Vec<Aabb>) -> BoxSet {
+        boxes.sort_by(|a, b| a.min.x.total_cmp(&b.min.x));
+        let widest = boxes.iter().map(|b| b.max.x - b.min.x).fold(0.0, f64::max);
+        BoxSet { boxes, widest }
+    }
+
+    fn hits(&self, p: &Aabb) -> bool {
+        // Only boxes starting within `widest` before p can reach it along x.
+        let first = self.boxes.partition_point(|b| b.min.x < p.min.x - self.widest);
+        self.boxes[first..].iter().take_while(|b| b.min.x <= p.max.x).any(|b| b.overlaps(p))
+    }
+}
+
+/// Grows `reach` with the old run's neighbours and inputs, to a fixpoint. Gives up (false) as
+/// soon as it holds more than `limit` bodies: the full re-simulation is then cheaper than
+/// growing on.
+fn grow(s: &Session, from: Tick, now: Tick, reach: &mut BTreeSet<EntityId>, limit: usize) -> bool {
     let mut scratch = BTreeSet::new();
     loop {
         let before = reach.len();
@@ -65,17 +89,26 @@ fn grow(s: &Session, from: Tick, now: Tick, reach: &mut BTreeSet<EntityId>) {
             let boxes: Vec<Aabb> =
                 reach.iter().filter_map(|id| f.state.bodies.slot(*id)).map(|slot| f.paths[slot]).collect();
             let Some(hull) = boxes.iter().copied().reduce(|a, b| a.union(&b)) else { continue };
+            let set = BoxSet::new(boxes);
             for (slot, p) in f.paths.iter().enumerate() {
-                if p.overlaps(&hull) && boxes.iter().any(|b| b.overlaps(p)) {
+                if p.overlaps(&hull) && set.hits(p) {
                     reach.insert(f.state.bodies.id[slot]);
                 }
             }
+            if reach.len() > limit {
+                return false;
+            }
         }
         if reach.len() == before {
-            return;
+            return true;
         }
     }
 }
+
+/// Rounds of grow, re-simulate, check before giving up for a full re-simulation: each round
+/// re-simulates the whole interval, so a reach set that keeps finding new bodies costs more than
+/// the full run it was meant to save.
+const MAX_ROUNDS: usize = 4;
 
 /// `w` with only the dynamic bodies in `keep` (and contacts among them or with static
 /// geometry).
@@ -144,14 +177,15 @@ fn crossings(s: &Session, from: Tick, run: &SubRun, reach: &BTreeSet<EntityId>) 
     let mut extra = BTreeSet::new();
     for (n, (ids, boxes)) in run.paths.iter().enumerate() {
         let f = s.history.get(Tick(from.0 + n as u32)).expect("held");
+        debug_assert_eq!(ids.len(), boxes.len());
         let Some(hull) = boxes.iter().copied().reduce(|a, b| a.union(&b)) else { continue };
+        let set = BoxSet::new(boxes.clone());
         for (slot, p) in f.paths.iter().enumerate() {
             let id = f.state.bodies.id[slot];
-            if !reach.contains(&id) && p.overlaps(&hull) && boxes.iter().any(|b| b.overlaps(p)) {
+            if !reach.contains(&id) && p.overlaps(&hull) && set.hits(p) {
                 extra.insert(id);
             }
         }
-        debug_assert_eq!(ids.len(), boxes.len());
     }
     extra
 }
@@ -189,13 +223,14 @@ pub fn resimulate(s: &mut Session, from: Tick, adv: &mut Advance) -> bool {
             }
         }
     }
-    if reach.is_empty() {
+    let limit = (s.world.bodies.len() / 4).max(8);
+    if reach.is_empty() || reach.len() > limit {
         return false;
     }
-    let limit = (s.world.bodies.len() / 4).max(8);
+    let mut rounds = 0;
     let run = loop {
-        grow(s, from, now, &mut reach);
-        if reach.len() > limit {
+        rounds += 1;
+        if rounds > MAX_ROUNDS || !grow(s, from, now, &mut reach, limit) {
             return false;
         }
         let Some(run) = simulate(s, from, now, &reach) else { return false };
@@ -237,4 +272,27 @@ pub fn resimulate(s: &mut Session, from: Tick, adv: &mut Advance) -> bool {
     }
     adv.skipped.extend(run.skipped);
     true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn aabb() -> impl Strategy<Value = Aabb> {
+        ((-20.0..20.0f64, -20.0..20.0f64, -20.0..20.0f64), (0.0..6.0f64, 0.0..3.0f64, 0.0..3.0f64))
+            .prop_map(|((x, y, z), (w, h, d))| Aabb { min: DVec3::new(x, y, z), max: DVec3::new(x + w, y + h, z + d) })
+    }
+
+    proptest! {
+        /// The sorted set answers exactly what a scan of every box answers.
+        #[test]
+        fn box_set_hits_equal_a_scan(set in proptest::collection::vec(aabb(), 0..60),
+                                     probes in proptest::collection::vec(aabb(), 1..60)) {
+            let sorted = BoxSet::new(set.clone());
+            for p in &probes {
+                prop_assert_eq!(sorted.hits(p), set.iter().any(|b| b.overlaps(p)));
+            }
+        }
+    }
 }
