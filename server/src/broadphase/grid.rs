@@ -279,12 +279,17 @@ impl Grid {
             for y in lo[1]..=hi[1] {
                 let first = self.key([lo[0], y, z]);
                 let last = self.key([hi[0], y, z]);
-                let mut c = self.keys.partition_point(|&k| k < first);
-                while c < self.keys.len() && self.keys[c] <= last {
+                // The row's entries: from the cell-start table when there is one, else by
+                // binary search in the sorted keys.
+                let (from, to) = if self.start.is_empty() {
+                    (self.keys.partition_point(|&k| k < first), self.keys.partition_point(|&k| k <= last))
+                } else {
+                    (self.start[first as usize] as usize, self.start[last as usize + 1] as usize)
+                };
+                for c in from..to {
                     if self.boxes[c].overlaps(query) {
                         out.push(self.order[c]);
                     }
-                    c += 1;
                 }
             }
         }

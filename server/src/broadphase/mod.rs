@@ -227,6 +227,10 @@ mod tests {
                     brute.query(aabbs, &q, &mut qa);
                     grid.query(aabbs, &q, &mut qc);
                     prop_assert_eq!(&qa, &qc, "grid query");
+                    let mut qe = Vec::new();
+                    cursors.query(aabbs, &q, &mut qe);
+                    qe.sort_unstable();
+                    prop_assert_eq!(&qa, &qe, "grid query (sorted keys)");
                 }
             }
         }

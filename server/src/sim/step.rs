@@ -110,24 +110,37 @@ struct Impact {
     started_inside: bool,
 }
 
-impl PartialEq for Impact {
+/// An impact's place in the resolution order, with its index in `Stepper::impacts`: the heap
+/// moves these 32 bytes, not the 96-byte impact (a pile pops hundreds of thousands a second).
+#[derive(Clone, Copy, Debug)]
+struct Queued {
+    t: f64,
+    a: u32,
+    b: Partner,
+    ver_a: u32,
+    ver_b: u32,
+    index: u32,
+}
+
+impl PartialEq for Queued {
     fn eq(&self, other: &Self) -> bool {
         self.cmp(other) == Ordering::Equal
     }
 }
-impl Eq for Impact {}
-impl PartialOrd for Impact {
+impl Eq for Queued {}
+impl PartialOrd for Queued {
     fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
         Some(self.cmp(other))
     }
 }
-impl Ord for Impact {
-    /// Reversed so the max-heap pops the earliest impact; ties broken by the pair.
+impl Ord for Queued {
+    /// Reversed so the max-heap pops the earliest impact; ties broken by the pair (and, between
+    /// copies of one impact, which are equal in every field, by index).
     fn cmp(&self, other: &Self) -> Ordering {
-        other
-            .t
-            .total_cmp(&self.t)
-            .then_with(|| (other.a, other.b, other.ver_a, other.ver_b).cmp(&(self.a, self.b, self.ver_a, self.ver_b)))
+        other.t.total_cmp(&self.t).then_with(|| {
+            (other.a, other.b, other.ver_a, other.ver_b, other.index)
+                .cmp(&(self.a, self.b, self.ver_a, self.ver_b, self.index))
+        })
     }
 }
 
@@ -180,13 +193,15 @@ pub struct Stepper {
     clip_len: Vec<u8>,
     pairs: Vec<(u32, u32)>,
     candidates: Vec<Cand>,
-    heap: BinaryHeap<Impact>,
+    heap: BinaryHeap<Queued>,
+    impacts: Vec<Impact>,
     triggers: Vec<Impact>,
     records: Vec<PairRecord>,
     end_records: Vec<PairRecord>,
     touching_now: Vec<(EntityId, EntityId)>,
     query_buf: Vec<u32>,
     static_buf: Vec<u32>,
+    partner_buf: Vec<Partner>,
     settled: Vec<u32>,
 }
 
@@ -211,12 +226,14 @@ impl Stepper {
             pairs: Vec::new(),
             candidates: Vec::new(),
             heap: BinaryHeap::new(),
+            impacts: Vec::new(),
             triggers: Vec::new(),
             records: Vec::new(),
             end_records: Vec::new(),
             touching_now: Vec::new(),
             query_buf: Vec::new(),
             static_buf: Vec::new(),
+            partner_buf: Vec::new(),
             settled: Vec::new(),
         }
     }
@@ -328,7 +345,8 @@ impl Stepper {
                 if !self.moving[i] {
                     continue;
                 }
-                self.static_candidates(w, i as u32);
+                self.static_partners(w, i as u32, self.aabbs[i]);
+                self.candidates.extend(self.partner_buf.iter().map(|&p| Cand::new(i as u32, p)));
             }
         }
         self.lap(&mut clock, |s| &mut s.broadphase, &mut stats);
@@ -339,6 +357,7 @@ impl Stepper {
         stats.pairs_tested = self.candidates.len() as u32;
         stats.toi_tests = 0;
         self.heap.clear();
+        self.impacts.clear();
         self.triggers.clear();
         for k in 0..self.candidates.len() {
             let Cand { a, b: p, .. } = self.candidates[k];
@@ -361,7 +380,8 @@ impl Stepper {
         //    everything its new path can reach.
         self.records.clear();
         let mut resolutions = 0u32;
-        while let Some(imp) = self.heap.pop() {
+        while let Some(q) = self.heap.pop() {
+            let imp = self.impacts[q.index as usize];
             let i = imp.a as usize;
             if self.dead[i] || matches!(imp.b, Partner::Body(j) if self.dead[j as usize]) {
                 continue;
@@ -444,22 +464,32 @@ impl Stepper {
         self.stats = stats;
     }
 
-    fn static_candidates(&mut self, w: &World, i: u32) {
+    /// The static bodies and terrain body `i` can meet within `aabb`, into `partner_buf`.
+    fn static_partners(&mut self, w: &World, i: u32, aabb: Aabb) {
         let b = &w.bodies;
-        let aabb = self.aabbs[i as usize];
+        self.partner_buf.clear();
         if self.plan.statics {
             w.statics.index.query(&aabb, &mut self.static_buf);
             for &s in &self.static_buf {
                 if w.config.classes.rule(b.class[i as usize], w.statics.class[s as usize]) != Rule::Ignore {
-                    self.candidates.push(Cand::new(i, Partner::Static(s)));
+                    self.partner_buf.push(Partner::Static(s));
                 }
             }
         }
         if let Some(t) = &w.statics.terrain {
             if t.field.aabb().overlaps(&aabb) && w.config.classes.rule(b.class[i as usize], t.class) != Rule::Ignore {
-                self.candidates.push(Cand::new(i, Partner::Terrain));
+                self.partner_buf.push(Partner::Terrain);
             }
         }
+    }
+
+    /// Adds a pair found mid-step to `candidates`. A pair found again is listed again, on
+    /// purpose: the settle passes walk this list, and the repeats (pairs around bodies that were
+    /// pushed or re-routed) give the busiest contacts more Gauss-Seidel iterations. Removing them
+    /// made a 1,000-ball pile 1.5x faster but left 1.6 % of a radius of penetration instead of
+    /// 0.02 %, and four times the passes did not recover it (0.43 %).
+    fn add_candidate(&mut self, a: u32, b: Partner) {
+        self.candidates.push(Cand::new(a, b));
     }
 
     /// Position of dynamic body `i` at step fraction `t` along its current path.
@@ -955,15 +985,16 @@ impl Stepper {
                 self.broadphase.query(&self.aabbs, &here, &mut buf);
                 for &j in &buf {
                     if j != body && !self.dead[j as usize] {
-                        self.candidates.push(Cand::new(body.min(j), Partner::Body(body.max(j))));
+                        self.add_candidate(body.min(j), Partner::Body(body.max(j)));
                     }
                 }
                 self.query_buf = buf;
                 if self.plan.statics || self.plan.terrain {
-                    let saved = self.aabbs[i];
-                    self.aabbs[i] = here;
-                    self.static_candidates(w, body);
-                    self.aabbs[i] = saved.union(&here);
+                    self.static_partners(w, body, here);
+                    for k in 0..self.partner_buf.len() {
+                        self.add_candidate(body, self.partner_buf[k]);
+                    }
+                    self.aabbs[i] = self.aabbs[i].union(&here);
                 }
             }
             pushed.clear();
@@ -1003,23 +1034,20 @@ impl Stepper {
         self.query_buf = buf;
         self.aabbs[i] = self.aabbs[i].union(&swept);
         if self.plan.statics || self.plan.terrain {
-            let before = self.candidates.len();
-            let saved = self.aabbs[i];
-            self.aabbs[i] = swept;
-            self.static_candidates(w, body);
-            self.aabbs[i] = saved;
-            for k in before..self.candidates.len() {
-                let Cand { a, b: p, .. } = self.candidates[k];
-                if let Some(imp) = self.impact(w, a, p, t, tests) {
+            self.static_partners(w, body, swept);
+            for k in 0..self.partner_buf.len() {
+                let p = self.partner_buf[k];
+                if let Some(imp) = self.impact(w, body, p, t, tests) {
                     self.schedule(w, imp);
                 }
+                self.add_candidate(body, p);
             }
         }
         // Make sure the pair list used for end-of-tick touching includes new partners.
-        for &j in &self.query_buf {
+        for k in 0..self.query_buf.len() {
+            let j = self.query_buf[k];
             if j != body && !self.dead[j as usize] {
-                let (lo, hi) = (body.min(j), body.max(j));
-                self.candidates.push(Cand::new(lo, Partner::Body(hi)));
+                self.add_candidate(body.min(j), Partner::Body(body.max(j)));
             }
         }
     }
@@ -1029,7 +1057,9 @@ impl Stepper {
         if self.is_trigger(w, &imp) {
             self.triggers.push(imp);
         } else {
-            self.heap.push(imp);
+            let index = self.impacts.len() as u32;
+            self.heap.push(Queued { t: imp.t, a: imp.a, b: imp.b, ver_a: imp.ver_a, ver_b: imp.ver_b, index });
+            self.impacts.push(imp);
         }
     }
 
