@@ -3,6 +3,7 @@
 //! the same scene, so ratios hold on a noisy shared machine where absolute times do not.
 
 mod accuracy;
+mod kernels;
 mod plan;
 mod report;
 mod rollback;
@@ -33,6 +34,8 @@ enum Suite {
     Rollback(rollback::RollbackArgs),
     /// Run time against error on scenes with known answers, rapier's CCD beside.
     Accuracy(accuracy::AccuracyArgs),
+    /// Each analytic pair kernel against parry's general path: time, depth agreement, symmetry.
+    Kernels(kernels::KernelsArgs),
     /// Numerical stress cases (far from the origin, scale, degenerate, speed, pile, energy,
     /// rollback).
     Stability(stability::StabilityArgs),
@@ -47,6 +50,7 @@ fn main() -> Result<()> {
         Suite::Rollback(a) => rollback::run(&a),
         Suite::Zenoh(a) => zenoh_rate::run(&a),
         Suite::Accuracy(a) => accuracy::run(&a),
+        Suite::Kernels(a) => kernels::run(&a),
         Suite::Stability(a) => stability::run(&a),
     }
 }
