@@ -220,10 +220,9 @@ pub fn speed(trials_per_set: u32) -> CaseResult {
     r
 }
 
-/// A pile of `n` spheres under gravity in a box for `ticks` ticks: no body leaves the box,
-/// penetration stays under 1 % of the radius, no velocity explodes.
-pub fn pile(n: u32, ticks: u32) -> CaseResult {
-    let mut r = CaseResult::new("pile");
+/// The pile case's scene: `n` spheres of radius 0.5 m dropped into an open box under gravity,
+/// and the box's inner side, m.
+pub fn pile_scene(n: u32) -> (Scene, f64) {
     let radius = 0.5;
     let side = ((f64::from(n)).cbrt() * 2.0 * radius * 1.6).max(4.0);
     let text = format!(
@@ -243,7 +242,15 @@ pub fn pile(n: u32, ticks: u32) -> CaseResult {
         M = side / 2.0 - 0.05,
         top = side * 3.0,
     );
-    let scene = Scene::parse(&text, "<pile>").expect("valid");
+    (Scene::parse(&text, "<pile>").expect("valid"), side)
+}
+
+/// A pile of `n` spheres under gravity in a box for `ticks` ticks: no body leaves the box,
+/// penetration stays under 1 % of the radius, no velocity explodes.
+pub fn pile(n: u32, ticks: u32) -> CaseResult {
+    let mut r = CaseResult::new("pile");
+    let radius = 0.5;
+    let (scene, side) = pile_scene(n);
     let mut w = scene.world.clone();
     let mut st = Stepper::new(Plan::for_world(&w), false);
     let mut out = TickOutput::default();

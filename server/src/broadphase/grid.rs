@@ -261,6 +261,11 @@ impl Grid {
         }
     }
 
+    /// Whether the last build succeeded for `n` boxes (then [`Grid::query`] answers from it).
+    pub fn holds(&self, n: usize) -> bool {
+        self.built && self.keys.len() == n && n > 0
+    }
+
     /// Appends every box (from the last build) overlapping `query`.
     pub fn query(&self, aabbs: &[Aabb], query: &Aabb, out: &mut Vec<u32>) {
         if !self.built || self.keys.len() != aabbs.len() || self.keys.is_empty() {

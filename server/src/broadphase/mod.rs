@@ -50,12 +50,14 @@ pub struct Broadphase {
     kind: BroadphaseKind,
     sap: sap::Sap,
     grid: grid::Grid,
+    /// The boxes of the last `pairs` call, for queries, when the grid does not hold them.
+    boxes: Vec<Aabb>,
 }
 
 impl Broadphase {
     /// A broadphase of the given kind.
     pub fn new(kind: BroadphaseKind) -> Broadphase {
-        Broadphase { kind, sap: sap::Sap::default(), grid: grid::Grid::default() }
+        Broadphase { kind, sap: sap::Sap::default(), grid: grid::Grid::default(), boxes: Vec::new() }
     }
 
     /// The method in use.
@@ -73,19 +75,33 @@ impl Broadphase {
             BroadphaseKind::Grid => self.grid.pairs(aabbs, out),
             BroadphaseKind::Bvh => bvh_pairs(aabbs, out),
         }
-        // Methods emit in their own order (sweep and prune's depends on history). Nothing
-        // downstream depends on it: impacts resolve in a total (time, pair, version) order and
-        // every set built from pairs is sorted before use. The determinism tests run each
-        // scene under every method and compare hashes.
+        // Methods emit in their own order, and sweep and prune's depends on its history (a
+        // rollback re-simulates with a later history). The settle pass is Gauss-Seidel over the
+        // pairs, so their order reaches the result: one canonical order for every method.
+        // (This comment used to say nothing downstream depended on the order; a pile run under
+        // each method proved otherwise: `tests/determinism.rs`.)
+        out.sort_unstable();
+        // Queries answer against these boxes, not whatever the caller holds later: the
+        // stepper grows a body's box when its path changes mid-step, and a method that saw
+        // the grown boxes would find other partners than one that did not.
+        if !self.grid_holds_boxes(aabbs) {
+            self.boxes.clear();
+            self.boxes.extend_from_slice(aabbs);
+        }
     }
 
-    /// Every body whose box (as given to the last [`Broadphase::pairs`]) overlaps `query`,
+    fn grid_holds_boxes(&self, aabbs: &[Aabb]) -> bool {
+        self.kind == BroadphaseKind::Grid && self.grid.holds(aabbs.len())
+    }
+
+    /// Every body whose box as given to the last [`Broadphase::pairs`] overlaps `query`,
     /// ascending. Used to find new partners for a body whose path changed mid-step.
     pub fn query(&self, aabbs: &[Aabb], query: &Aabb, out: &mut Vec<u32>) {
         out.clear();
-        match self.kind {
-            BroadphaseKind::Grid => self.grid.query(aabbs, query, out),
-            _ => brute::query(aabbs, query, out),
+        if self.grid_holds_boxes(aabbs) {
+            self.grid.query(aabbs, query, out);
+        } else {
+            brute::query(&self.boxes, query, out);
         }
         out.sort_unstable();
     }
