@@ -48,9 +48,9 @@ impl Obb {
 
     /// The box's support feature in direction `n` as a convex polygon (1, 2 or 4 vertices, in
     /// order round the boundary).
-    fn support_feature(&self, n: DVec3) -> Vec<DVec3> {
+    fn support_feature(&self, n: DVec3) -> Poly {
         let mut fixed = self.centre;
-        let mut free = Vec::with_capacity(2);
+        let mut free = Poly::default();
         for i in 0..3 {
             let along = self.axes[i] * self.half[i];
             let c = self.axes[i].dot(n);
@@ -61,11 +61,10 @@ impl Obb {
             }
         }
         match free.as_slice() {
-            [] => vec![fixed],
-            [u] => vec![fixed - *u, fixed + *u],
-            [u, v] => vec![fixed + *u + *v, fixed - *u + *v, fixed - *u - *v, fixed + *u - *v],
-            // A zero normal cannot occur: the axes are an orthonormal basis.
-            _ => vec![fixed],
+            [u] => Poly::of(&[fixed - *u, fixed + *u]),
+            [u, v] => Poly::of(&[fixed + *u + *v, fixed - *u + *v, fixed - *u - *v, fixed + *u - *v]),
+            // No free axis: a vertex. (Three cannot occur: the axes are an orthonormal basis.)
+            _ => Poly::of(&[fixed]),
         }
     }
 
@@ -78,6 +77,37 @@ impl Obb {
             (m, m.dot(self.centre) + self.half[k])
         };
         [side(i, 1.0), side(i, -1.0), side(j, 1.0), side(j, -1.0)]
+    }
+}
+
+/// A convex polygon of at most eight vertices (a rectangle clipped by a rectangle), kept on
+/// the stack: the kernel runs per pair per query and must not allocate.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Poly {
+    pts: [DVec3; 8],
+    len: usize,
+}
+
+impl Poly {
+    fn of(points: &[DVec3]) -> Poly {
+        let mut p = Poly::default();
+        for &q in points {
+            p.push(q);
+        }
+        p
+    }
+
+    fn push(&mut self, p: DVec3) {
+        self.pts[self.len] = p;
+        self.len += 1;
+    }
+
+    fn as_slice(&self) -> &[DVec3] {
+        &self.pts[..self.len]
+    }
+
+    fn is_empty(&self) -> bool {
+        self.len == 0
     }
 }
 
@@ -154,7 +184,7 @@ pub fn contact(ha: DVec3, ra: DQuat, hb: DVec3, rb: DQuat, d: DVec3) -> Option<C
             let (pa, pb) = match (ea.as_slice(), eb.as_slice()) {
                 ([p1, q1], [p2, q2]) => closest_between_segments(*p1, *q1, *p2, *q2),
                 // A vertex or face here means the edge axis is (numerically) a face axis too.
-                _ => (centroid(&ea), centroid(&eb)),
+                (fa, fb) => (centroid(fa), centroid(fb)),
             };
             (pa + pb) * 0.5
         }
@@ -168,44 +198,43 @@ pub fn contact(ha: DVec3, ra: DQuat, hb: DVec3, rb: DQuat, d: DVec3) -> Option<C
 fn face_contact_point(reference: &Obb, axis: usize, incident: &Obb, n: DVec3) -> DVec3 {
     let plane = n.dot(reference.centre) + reference.half[axis];
     let feature = incident.support_feature(-n);
-    let mut clipped = feature.clone();
+    let mut clipped = feature;
     for (m, offset) in reference.face_sides(axis) {
-        clipped = clip(&clipped, m, offset);
+        clipped = clip(clipped.as_slice(), m, offset);
         if clipped.is_empty() {
             break;
         }
     }
     // Clipping can only empty the region through rounding when the features barely meet.
     let region = if clipped.is_empty() { feature } else { clipped };
-    let c = centroid(&region);
+    let c = centroid(region.as_slice());
     c + n * ((plane - c.dot(n)) * 0.5)
 }
 
 /// Clips a convex polygon (or a segment, or a point) to the half-space `p·m <= offset`.
-fn clip(poly: &[DVec3], m: DVec3, offset: f64) -> Vec<DVec3> {
+fn clip(poly: &[DVec3], m: DVec3, offset: f64) -> Poly {
     let inside = |p: DVec3| p.dot(m) <= offset;
     let cut = |p: DVec3, q: DVec3| {
         let (dp, dq) = (p.dot(m) - offset, q.dot(m) - offset);
         p + (q - p) * (dp / (dp - dq))
     };
+    let mut out = Poly::default();
     match poly {
-        [] => Vec::new(),
+        [] => {}
         [p] => {
             if inside(*p) {
-                vec![*p]
-            } else {
-                Vec::new()
+                out.push(*p);
             }
         }
         [p, q] => match (inside(*p), inside(*q)) {
-            (true, true) => vec![*p, *q],
-            (true, false) => vec![*p, cut(*p, *q)],
-            (false, true) => vec![cut(*p, *q), *q],
-            (false, false) => Vec::new(),
+            (true, true) => out = Poly::of(&[*p, *q]),
+            (true, false) => out = Poly::of(&[*p, cut(*p, *q)]),
+            (false, true) => out = Poly::of(&[cut(*p, *q), *q]),
+            (false, false) => {}
         },
         _ => {
-            // Sutherland–Hodgman against one plane.
-            let mut out = Vec::with_capacity(poly.len() + 1);
+            // Sutherland–Hodgman against one plane: each plane adds at most one vertex, and a
+            // rectangle meets four planes, so eight is enough.
             for k in 0..poly.len() {
                 let (p, q) = (poly[k], poly[(k + 1) % poly.len()]);
                 match (inside(p), inside(q)) {
@@ -218,9 +247,9 @@ fn clip(poly: &[DVec3], m: DVec3, offset: f64) -> Vec<DVec3> {
                     (false, false) => {}
                 }
             }
-            out
         }
     }
+    out
 }
 
 /// Mean of the vertices (the polygons here are at most octagons from clipping a rectangle by a
@@ -301,12 +330,12 @@ mod tests {
     #[test]
     fn clip_handles_points_segments_and_polygons() {
         let m = DVec3::X;
-        assert_eq!(clip(&[DVec3::new(2.0, 0.0, 0.0)], m, 1.0), Vec::<DVec3>::new());
-        assert_eq!(clip(&[DVec3::ZERO, DVec3::new(2.0, 0.0, 0.0)], m, 1.0), vec![DVec3::ZERO, DVec3::X]);
+        assert!(clip(&[DVec3::new(2.0, 0.0, 0.0)], m, 1.0).is_empty());
+        assert_eq!(clip(&[DVec3::ZERO, DVec3::new(2.0, 0.0, 0.0)], m, 1.0).as_slice(), &[DVec3::ZERO, DVec3::X]);
         let square = [DVec3::new(2.0, 1.0, 0.0), DVec3::new(0.0, 1.0, 0.0), DVec3::ZERO, DVec3::new(2.0, 0.0, 0.0)];
         let half = clip(&square, m, 1.0);
-        assert_eq!(half.len(), 4);
-        assert!((centroid(&half) - DVec3::new(0.5, 0.5, 0.0)).length() < 1e-12);
+        assert_eq!(half.as_slice().len(), 4);
+        assert!((centroid(half.as_slice()) - DVec3::new(0.5, 0.5, 0.0)).length() < 1e-12);
     }
 
     proptest::proptest! {
