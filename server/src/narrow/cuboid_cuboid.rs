@@ -39,13 +39,6 @@ impl Obb {
         Obb { centre, axes: [rot * DVec3::X, rot * DVec3::Y, rot * DVec3::Z], half }
     }
 
-    /// Half the box's extent along unit `n`.
-    fn radius(&self, n: DVec3) -> f64 {
-        self.half.x * self.axes[0].dot(n).abs()
-            + self.half.y * self.axes[1].dot(n).abs()
-            + self.half.z * self.axes[2].dot(n).abs()
-    }
-
     /// The box's support feature in direction `n` as a convex polygon (1, 2 or 4 vertices, in
     /// order round the boundary).
     fn support_feature(&self, n: DVec3) -> Poly {
@@ -128,49 +121,65 @@ enum Axis {
 pub fn contact(ha: DVec3, ra: DQuat, hb: DVec3, rb: DQuat, d: DVec3) -> Option<Contact> {
     let a = Obb::new(DVec3::ZERO, ra, ha);
     let b = Obb::new(d, rb, hb);
-    // Separation along a unit axis, with the axis turned to point from a to b.
-    let separation = |n: DVec3| {
-        let n = if n.dot(d) < 0.0 { -n } else { n };
-        (d.dot(n) - a.radius(n) - b.radius(n), n)
-    };
+    // Everything in a's frame (Gottschalk's OBB test): r[i][j] = a_i · b_j, t = d in a's axes.
+    // Each axis's extents and the centres' distance along it are then a few products of these
+    // numbers instead of fresh dot products with both boxes' axes.
+    let r: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| a.axes[i].dot(b.axes[j])));
+    let ar = r.map(|row| row.map(f64::abs));
+    let t = [d.dot(a.axes[0]), d.dot(a.axes[1]), d.dot(a.axes[2])];
+    let (ea, eb) = (ha.to_array(), hb.to_array());
 
-    let mut best = (f64::NEG_INFINITY, DVec3::X, Axis::FaceA(0));
+    let mut best = (f64::NEG_INFINITY, Axis::FaceA(0));
     for i in 0..3 {
-        let (s, n) = separation(a.axes[i]);
+        let s = t[i].abs() - ea[i] - (eb[0] * ar[i][0] + eb[1] * ar[i][1] + eb[2] * ar[i][2]);
         if s > 0.0 {
             return None;
         }
         if s > best.0 {
-            best = (s, n, Axis::FaceA(i));
+            best = (s, Axis::FaceA(i));
         }
     }
     for j in 0..3 {
-        let (s, n) = separation(b.axes[j]);
+        let along = t[0] * r[0][j] + t[1] * r[1][j] + t[2] * r[2][j];
+        let s = along.abs() - (ea[0] * ar[0][j] + ea[1] * ar[1][j] + ea[2] * ar[2][j]) - eb[j];
         if s > 0.0 {
             return None;
         }
         if s > best.0 {
-            best = (s, n, Axis::FaceB(j));
+            best = (s, Axis::FaceB(j));
         }
     }
     let face_best = best.0;
     for i in 0..3 {
+        let (i1, i2) = ((i + 1) % 3, (i + 2) % 3);
         for j in 0..3 {
-            let c = a.axes[i].cross(b.axes[j]);
-            let len = c.length();
+            let (j1, j2) = ((j + 1) % 3, (j + 2) % 3);
+            // a_i × b_j in a's frame has components -r[i2][j] (along a_i1) and r[i1][j] (along
+            // a_i2): its length without the cancellation of sqrt(1 - r[i][j]^2).
+            let len = r[i1][j].hypot(r[i2][j]);
             // Parallel edges: the face axes already cover this direction.
             if len < 1e-6 {
                 continue;
             }
-            let (s, n) = separation(c / len);
+            let along = (t[i2] * r[i1][j] - t[i1] * r[i2][j]).abs();
+            let extent = ea[i1] * ar[i2][j] + ea[i2] * ar[i1][j] + eb[j1] * ar[i][j2] + eb[j2] * ar[i][j1];
+            let s = (along - extent) / len;
             if s > 0.0 {
                 return None;
             }
             if s > best.0 && s > face_best + EDGE_BIAS * (1.0 + face_best.abs()) {
-                best = (s, n, Axis::Edges(i, j));
+                best = (s, Axis::Edges(i, j));
             }
         }
     }
+    // The winning axis as a unit vector, turned to point from a to b.
+    let toward_b = |n: DVec3| if n.dot(d) < 0.0 { -n } else { n };
+    let n = match best.1 {
+        Axis::FaceA(i) => toward_b(a.axes[i]),
+        Axis::FaceB(j) => toward_b(b.axes[j]),
+        Axis::Edges(i, j) => toward_b(a.axes[i].cross(b.axes[j]).normalize()),
+    };
+    let best = (best.0, n, best.1);
 
     let (sep, n, axis) = best;
     let depth = -sep;
