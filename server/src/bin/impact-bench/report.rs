@@ -13,6 +13,14 @@ pub fn median_ms(samples: &mut [Duration]) -> f64 {
     m.as_secs_f64() * 1e3
 }
 
+/// Mean of durations in milliseconds.
+pub fn mean_ms(samples: &[Duration]) -> f64 {
+    if samples.is_empty() {
+        return f64::NAN;
+    }
+    samples.iter().map(Duration::as_secs_f64).sum::<f64>() * 1e3 / samples.len() as f64
+}
+
 /// Prints a JSON line (always to stdout, so `--json | grep '^{'` works with the table too).
 pub fn json_line(v: &serde_json::Value) {
     println!("{v}");
