@@ -198,6 +198,7 @@ pub struct Stepper {
     triggers: Vec<Impact>,
     records: Vec<PairRecord>,
     end_records: Vec<PairRecord>,
+    end_order: Vec<(u64, u32)>,
     touching_now: Vec<(EntityId, EntityId)>,
     query_buf: Vec<u32>,
     static_buf: Vec<u32>,
@@ -230,6 +231,7 @@ impl Stepper {
             triggers: Vec::new(),
             records: Vec::new(),
             end_records: Vec::new(),
+            end_order: Vec::new(),
             touching_now: Vec::new(),
             query_buf: Vec::new(),
             static_buf: Vec::new(),
@@ -1119,9 +1121,16 @@ impl Stepper {
         // Three sorted lists, walked together by pair key: P, the pairs touching before; E, the
         // pairs touching now that were tested (`end_records`); R, this tick's impacts (the
         // first per pair). A linear merge instead of a lookup per pair keeps this stage O(n).
+        // E is sorted as 16-byte (packed key, index) entries rather than 88-byte records; of
+        // a pair tested twice, the first tested stays.
         let key_of = |r: &PairRecord| ordered(r.key.0, r.key.1);
-        end_records.sort_unstable_by_key(key_of);
-        end_records.dedup_by(|x, y| key_of(x) == key_of(y));
+        let pack = |(a, b): (EntityId, EntityId)| u64::from(a.0) << 32 | u64::from(b.0);
+        let unpack = |k: u64| (EntityId((k >> 32) as u32), EntityId(k as u32));
+        let mut end_order = std::mem::take(&mut self.end_order);
+        end_order.clear();
+        end_order.extend(end_records.iter().enumerate().map(|(k, r)| (pack(key_of(r)), k as u32)));
+        end_order.sort_unstable();
+        end_order.dedup_by_key(|e| e.0);
         self.records.sort_by(|x, y| key_of(x).cmp(&key_of(y)).then(x.t.total_cmp(&y.t)));
         self.records.dedup_by(|x, y| key_of(x) == key_of(y)); // keeps the earliest impact
                                                               // Resting pairs were not candidates: they keep touching while both ends stay put.
@@ -1133,13 +1142,13 @@ impl Stepper {
         let (mut ip, mut ie, mut ir) = (0, 0, 0);
         loop {
             let kp = prev.get(ip).copied();
-            let ke = end_records.get(ie).map(key_of);
+            let ke = end_order.get(ie).map(|e| unpack(e.0));
             let kr = self.records.get(ir).map(key_of);
             let Some(key) = [kp, ke, kr].into_iter().flatten().min() else { break };
             let was = kp == Some(key);
             let tested = ke == Some(key);
             let impact = if kr == Some(key) { Some(self.records[ir]) } else { None };
-            let end = if tested { Some(end_records[ie]) } else { None };
+            let end = if tested { Some(end_records[end_order[ie].1 as usize]) } else { None };
             let now = tested || (was && impact.is_none() && still(key.0) && still(key.1));
             if now {
                 self.touching_now.push(key);
@@ -1182,6 +1191,7 @@ impl Stepper {
         w.touching.clear();
         w.touching.extend_from_slice(&self.touching_now);
         self.end_records = end_records;
+        self.end_order = end_order;
     }
 }
 
