@@ -98,3 +98,40 @@ proptest! {
         prop_assert!(sel.stats.selective_rollbacks * 2 >= sel.stats.rollbacks, "selective ran {} of {} rollbacks", sel.stats.selective_rollbacks, sel.stats.rollbacks);
     }
 }
+
+/// Where every late input reaches most of the world (a long ray across it), selective
+/// re-simulation cannot succeed; failed attempts must back off instead of costing every
+/// rollback, and the results must still be the full re-simulation's.
+#[test]
+fn failed_attempts_back_off_and_change_nothing() {
+    let sc = scene(7, 100, 4, true);
+    let (mut full, mut sel) = pair(&sc);
+    let mut seq = 0;
+    for _ in 0..160u32 {
+        let now = full.now().0;
+        if now > 25 {
+            seq += 1;
+            let ray = Action::FireRay {
+                shooter: EntityId(3),
+                origin: [-19.0, 2.0, -19.0],
+                direction: [1.0, 0.3, 1.0],
+                max_distance_m: 60.0,
+            };
+            let input = ClientInput { client: ClientId(1), seq, tick: Tick(now - 8), actions: vec![ray] };
+            assert_eq!(full.submit(input.clone()), sel.submit(input));
+        }
+        let (a, b) = (full.advance(), sel.advance());
+        assert_eq!(full.world().state_hash(), sel.world().state_hash(), "tick {now}");
+        assert_eq!(a.corrections, b.corrections);
+        assert_eq!(a.rays, b.rays);
+    }
+    let st = &sel.stats;
+    assert!(st.rollbacks > 100, "{} rollbacks", st.rollbacks);
+    assert_eq!(st.selective_rollbacks, 0, "a ray across the world reaches everything");
+    assert!(
+        st.selective_attempts * 8 < st.rollbacks,
+        "{} attempts in {} rollbacks",
+        st.selective_attempts,
+        st.rollbacks
+    );
+}

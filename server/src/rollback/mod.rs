@@ -118,6 +118,9 @@ pub struct RollbackStats {
     pub corrections: u64,
     /// Rollbacks done selectively.
     pub selective_rollbacks: u64,
+    /// Selective re-simulations attempted (the rest of the rollbacks went straight to the full
+    /// one while failed attempts backed off).
+    pub selective_attempts: u64,
     /// Self-check re-simulations run.
     pub self_checks: u64,
     /// Self-check re-simulations that did not reproduce the past exactly.
@@ -147,7 +150,16 @@ pub struct Session {
     /// Counters.
     pub stats: RollbackStats,
     planted_desync: bool,
+    /// Selective attempts to skip before trying again, and the failures in a row that set it:
+    /// where late inputs reach most of the world every tick, each failed attempt is pure cost.
+    /// Which path runs never changes a result (selective equals full), only the time.
+    selective_backoff: u32,
+    selective_failures: u32,
 }
+
+/// The longest run of rollbacks done in full, without a selective attempt, after repeated
+/// failures (at 64 Hz, about one attempt a second).
+const SELECTIVE_BACKOFF_MAX: u32 = 64;
 
 impl Session {
     /// A session starting from `world`.
@@ -167,6 +179,27 @@ impl Session {
             out: TickOutput::default(),
             stats: RollbackStats::default(),
             planted_desync: false,
+            selective_backoff: 0,
+            selective_failures: 0,
+        }
+    }
+
+    /// A selective re-simulation unless recent attempts failed: after `k` failures in a row the
+    /// next `min(2^k, 64)` rollbacks go straight to the full re-simulation.
+    fn try_selective(&mut self, from: Tick, adv: &mut Advance) -> bool {
+        if self.selective_backoff > 0 {
+            self.selective_backoff -= 1;
+            return false;
+        }
+        self.stats.selective_attempts += 1;
+        if selective::resimulate(self, from, adv) {
+            self.selective_failures = 0;
+            true
+        } else {
+            self.selective_failures = self.selective_failures.saturating_add(1);
+            self.selective_backoff =
+                1u32.checked_shl(self.selective_failures).unwrap_or(u32::MAX).min(SELECTIVE_BACKOFF_MAX);
+            false
         }
     }
 
@@ -302,7 +335,7 @@ impl Session {
             self.stats.depth_max = self.stats.depth_max.max(adv.rollback_depth);
             self.stats.resimulated_ticks += u64::from(adv.rollback_depth);
             let started = std::time::Instant::now();
-            let done = self.cfg.selective && selective::resimulate(self, from, &mut adv);
+            let done = self.cfg.selective && self.try_selective(from, &mut adv);
             if done {
                 self.stats.selective_rollbacks += 1;
             } else {

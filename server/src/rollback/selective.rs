@@ -108,7 +108,7 @@ fn grow(s: &Session, from: Tick, now: Tick, reach: &mut BTreeSet<EntityId>, limi
 /// Rounds of grow, re-simulate, check before giving up for a full re-simulation: each round
 /// re-simulates the whole interval, so a reach set that keeps finding new bodies costs more than
 /// the full run it was meant to save.
-const MAX_ROUNDS: usize = 4;
+const MAX_ROUNDS: usize = 3;
 
 /// `w` with only the dynamic bodies in `keep` (and contacts among them or with static
 /// geometry).
