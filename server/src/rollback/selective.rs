@@ -117,7 +117,7 @@ fn subset(w: &World, keep: &BTreeSet<EntityId>) -> World {
     let dead: Vec<bool> = w.bodies.id.iter().map(|id| !keep.contains(id)).collect();
     sub.bodies.remove_flagged(&dead);
     let dynamic_outside = |id: &EntityId| w.bodies.slot(*id).is_some() && !keep.contains(id);
-    sub.touching.retain(|(a, b)| !dynamic_outside(a) && !dynamic_outside(b));
+    sub.touching.retain(|t| !dynamic_outside(&t.a) && !dynamic_outside(&t.b));
     sub
 }
 
@@ -196,12 +196,14 @@ fn patch(w: &mut World, sub: &World, reach: &BTreeSet<EntityId>) {
         let slot = w.bodies.slot(*id).expect("alive sets were checked equal");
         w.bodies.pos[slot] = sub.bodies.pos[k];
         w.bodies.vel[slot] = sub.bodies.vel[k];
+        w.bodies.asleep[slot] = sub.bodies.asleep[k];
+        w.bodies.still_ticks[slot] = sub.bodies.still_ticks[k];
     }
     let dynamic_in = |id: &EntityId| reach.contains(id);
-    w.touching.retain(|(a, b)| !dynamic_in(a) && !dynamic_in(b));
+    w.touching.retain(|t| !dynamic_in(&t.a) && !dynamic_in(&t.b));
     w.touching.extend(sub.touching.iter().copied());
-    w.touching.sort_unstable();
-    w.touching.dedup();
+    w.touching.sort_by_key(|t| t.key());
+    w.touching.dedup_by_key(|t| t.key());
 }
 
 /// Re-simulates only what the late inputs can reach. Returns false (having changed nothing)

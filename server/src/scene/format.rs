@@ -62,6 +62,12 @@ fn default_density() -> f64 {
 fn default_lead() -> u32 {
     8
 }
+fn default_sleep_speed() -> f64 {
+    0.05
+}
+fn default_sleep_after() -> f64 {
+    0.5
+}
 fn default_resolutions() -> u32 {
     100_000
 }
@@ -105,6 +111,15 @@ pub struct WorldDef {
     /// Most contact resolutions in one tick (default 100,000).
     #[serde(default = "default_resolutions")]
     pub max_resolutions_per_tick: u32,
+    /// Coulomb friction of resting contacts (default 0: frictionless).
+    #[serde(default)]
+    pub friction: f64,
+    /// A body slower than this counts as still, m/s (default 0.05).
+    #[serde(default = "default_sleep_speed")]
+    pub sleep_speed_mps: f64,
+    /// An island still for this long falls asleep, s (default 0.5; 0 disables sleeping).
+    #[serde(default = "default_sleep_after")]
+    pub sleep_after_s: f64,
 }
 
 /// `[[class]]`.
@@ -128,6 +143,9 @@ pub struct ClassDef {
     /// Immovable (infinite mass) but not static: bricks that can be destroyed.
     #[serde(default)]
     pub immovable: bool,
+    /// Whether bodies of this class may fall asleep (default true).
+    #[serde(default = "default_true")]
+    pub can_sleep: bool,
 }
 
 /// A response kind.

@@ -199,6 +199,17 @@ impl Builder {
         if !(w.bounce_threshold_mps.is_finite() && w.bounce_threshold_mps >= 0.0) {
             return Err(self.err("world.bounce_threshold_mps", "must be finite and >= 0"));
         }
+        if !(w.friction.is_finite() && w.friction >= 0.0 && w.friction <= 10.0) {
+            return Err(self.err("world.friction", format!("{} must be in [0, 10]", w.friction)));
+        }
+        if !(w.sleep_speed_mps.is_finite() && w.sleep_speed_mps >= 0.0) {
+            return Err(self.err("world.sleep_speed_mps", format!("{} must be finite and >= 0", w.sleep_speed_mps)));
+        }
+        if !(w.sleep_after_s.is_finite() && (0.0..=3600.0).contains(&w.sleep_after_s)) {
+            return Err(
+                self.err("world.sleep_after_s", format!("{} must be in [0, 3600] s (0: never)", w.sleep_after_s))
+            );
+        }
         if !(0.0..=1.0).contains(&w.restitution) {
             return Err(self.err("world.restitution", format!("{} must be in [0, 1]", w.restitution)));
         }
@@ -224,6 +235,7 @@ impl Builder {
                 max_speed_mps: c.max_speed_mps,
                 gravity: c.gravity,
                 density_kg_m3: c.density_kg_m3,
+                can_sleep: c.can_sleep,
             });
             immovable.push(c.immovable || c.is_static);
         }
@@ -429,6 +441,14 @@ impl Builder {
             contact_slop_m: w.contact_slop_m,
             bounce_threshold_mps: w.bounce_threshold_mps,
             max_resolutions_per_tick: w.max_resolutions_per_tick,
+            friction: w.friction,
+            sleep_speed_mps: w.sleep_speed_mps,
+            // At least one tick, so "0.5 s" never rounds to "never"; 0 alone disables.
+            sleep_after_ticks: if w.sleep_after_s == 0.0 {
+                0
+            } else {
+                ((w.sleep_after_s * f64::from(w.tick_hz)).ceil() as u32).max(1)
+            },
             max_bodies: w.max_bodies,
             window_ticks,
             input_lead_ticks: w.input_lead_ticks,

@@ -277,8 +277,12 @@ fn remove(w: &mut World, removed: &[EntityId], out: &mut TickOutput) {
     }
     let tick = w.tick;
     let gone = |id: EntityId| removed.contains(&id);
-    for &(a, b) in &w.touching {
+    // What rested on a removed body wakes: its support is gone.
+    let mut partners = Vec::new();
+    for t in &w.touching {
+        let (a, b) = t.key();
         if gone(a) || gone(b) {
+            partners.extend([a, b].into_iter().filter(|id| !gone(*id)));
             out.events.push(CollisionEvent {
                 tick,
                 toi: 0.0,
@@ -294,6 +298,10 @@ fn remove(w: &mut World, removed: &[EntityId], out: &mut TickOutput) {
             });
         }
     }
-    w.touching.retain(|&(a, b)| !gone(a) && !gone(b));
+    w.touching.retain(|t| !gone(t.a) && !gone(t.b));
     w.bodies.remove_flagged(&dead);
+    let seeds: Vec<u32> = partners.iter().filter_map(|id| w.bodies.slot(*id)).map(|s| s as u32).collect();
+    if !seeds.is_empty() {
+        crate::sim::island::Islands::default().wake(w, &seeds);
+    }
 }

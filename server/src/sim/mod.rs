@@ -3,6 +3,7 @@
 //! benchmarks, rollback and the network runtime all drive it.
 
 pub mod input;
+pub mod island;
 pub mod plan;
 pub mod shape;
 pub mod step;

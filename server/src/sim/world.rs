@@ -66,6 +66,8 @@ pub struct ClassProps {
     pub gravity: bool,
     /// Density for bodies spawned without a mass, kg/m^3.
     pub density_kg_m3: f64,
+    /// Whether bodies of this class may fall asleep.
+    pub can_sleep: bool,
 }
 
 /// The class table: properties and the response rule for every ordered pair.
@@ -131,6 +133,13 @@ pub struct SimConfig {
     pub bounce_threshold_mps: f64,
     /// Most contact resolutions per tick (bounds the work a pathological pile can cause).
     pub max_resolutions_per_tick: u32,
+    /// Coulomb friction coefficient of resting contacts (a body on a support): the tangential
+    /// speed a support removes per tick is at most this times the normal speed it cancels.
+    pub friction: f64,
+    /// A body slower than this (m/s) counts as still, for sleeping.
+    pub sleep_speed_mps: f64,
+    /// An island whose bodies have all been still this many ticks falls asleep (0: never).
+    pub sleep_after_ticks: u32,
     /// Most bodies the world may hold (spawns beyond it are refused).
     pub max_bodies: u32,
     /// Rollback window in ticks.
@@ -205,6 +214,26 @@ pub struct BodyTable {
     pub owner: Vec<Option<ClientId>>,
 }
 
+/// A pair touching at the end of a tick: the contact cache a resting body's support is read
+/// from at the next tick.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Touch {
+    /// The lower entity id.
+    pub a: EntityId,
+    /// The higher entity id.
+    pub b: EntityId,
+    /// Unit contact normal, world frame, pointing from `a` to `b`.
+    pub normal: DVec3,
+}
+
+impl Touch {
+    /// `(a, b)`: the order the touching list is sorted in.
+    #[inline]
+    pub fn key(&self) -> (EntityId, EntityId) {
+        (self.a, self.b)
+    }
+}
+
 /// Dynamic bodies, struct-of-arrays, sorted by ascending entity id (spawns append larger ids and
 /// removals keep the order), so iteration order is the id order and never a hash order. The
 /// per-body constants live in a shared [`BodyTable`] (reached through `Deref`: `bodies.id[i]`).
@@ -214,6 +243,11 @@ pub struct Bodies {
     pub pos: Vec<DVec3>,
     /// Velocities, m/s.
     pub vel: Vec<DVec3>,
+    /// Asleep: not integrated, not a mover in the broadphase, no events; an obstacle for awake
+    /// bodies. A sleeping body's velocity is zero.
+    pub asleep: Vec<bool>,
+    /// Consecutive ticks the body has ended slower than the sleep speed (saturating).
+    pub still_ticks: Vec<u16>,
     table: Arc<BodyTable>,
 }
 
@@ -264,6 +298,8 @@ impl Bodies {
         assert!(self.id.last().is_none_or(|&last| last < id), "entity ids must ascend");
         self.pos.push(b.pos);
         self.vel.push(b.vel);
+        self.asleep.push(false);
+        self.still_ticks.push(0);
         let t = Arc::make_mut(&mut self.table);
         t.id.push(id);
         t.class.push(b.class);
@@ -289,6 +325,8 @@ impl Bodies {
         }
         keep(&mut self.pos, dead);
         keep(&mut self.vel, dead);
+        keep(&mut self.asleep, dead);
+        keep(&mut self.still_ticks, dead);
         let t = Arc::make_mut(&mut self.table);
         keep(&mut t.id, dead);
         keep(&mut t.class, dead);
@@ -317,8 +355,9 @@ pub struct World {
     pub bodies: Bodies,
     /// The id the next spawned body gets.
     pub next_entity: u32,
-    /// Pairs touching at the end of the previous tick, `(lower id, higher id)`, sorted.
-    pub touching: Vec<(EntityId, EntityId)>,
+    /// Pairs touching at the end of the previous tick, with their normals, sorted by
+    /// `(lower id, higher id)`.
+    pub touching: Vec<Touch>,
     /// Static geometry and terrain.
     pub statics: Arc<StaticWorld>,
     /// Settings.
@@ -335,6 +374,12 @@ impl World {
         self.next_entity = self.next_entity.checked_add(1)?;
         self.bodies.push(id, b);
         Some(id)
+    }
+
+    /// Bodies awake and asleep.
+    pub fn awake_asleep(&self) -> (usize, usize) {
+        let asleep = self.bodies.asleep.iter().filter(|a| **a).count();
+        (self.bodies.len() - asleep, asleep)
     }
 
     /// The class of any entity, dynamic, static or terrain.
@@ -365,9 +410,13 @@ impl World {
             }
             h.f64(b.inv_mass[i]);
             h.u64(b.owner[i].map_or(u64::MAX, |c| u64::from(c.0)));
+            h.u64(u64::from(b.asleep[i]) << 16 | u64::from(b.still_ticks[i]));
         }
-        for (a, c) in &self.touching {
-            h.u64(u64::from(a.0) << 32 | u64::from(c.0));
+        for t in &self.touching {
+            h.u64(u64::from(t.a.0) << 32 | u64::from(t.b.0));
+            h.f64(t.normal.x);
+            h.f64(t.normal.y);
+            h.f64(t.normal.z);
         }
         h.finish()
     }

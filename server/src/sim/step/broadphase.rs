@@ -1,0 +1,126 @@
+//! Stage 3, broadphase: the pairs that may touch during the step, from swept bounds, and the
+//! static geometry and terrain each moving body can reach; bodies whose paths change mid-step
+//! are queried again.
+
+use super::{Cand, Partner, Stepper};
+use crate::sim::shape::Aabb;
+use crate::sim::world::{Rule, World};
+
+impl Stepper {
+    /// The tick's candidate pairs: dynamic pairs from the swept bounds (two bodies at rest are
+    /// never a pair), then the static geometry and terrain each moving body can reach. A
+    /// sleeping body that a moving body's swept box reaches wakes with its island; it is tested
+    /// this tick where it lies, like static geometry, and integrated from the next.
+    pub(super) fn find_candidates(&mut self, w: &mut World) {
+        self.broadphase.pairs(&self.aabbs, &mut self.pairs);
+        self.candidates.clear();
+        self.wake_seeds.clear();
+        let cfg = &w.config;
+        let b = &w.bodies;
+        let n = b.len();
+        for &(i, j) in &self.pairs {
+            if !self.moving[i as usize] && !self.moving[j as usize] {
+                continue; // both resting: nothing can change between them
+            }
+            if cfg.classes.rule(b.class[i as usize], b.class[j as usize]) == Rule::Ignore {
+                continue;
+            }
+            for k in [i, j] {
+                if b.asleep[k as usize] {
+                    self.wake_seeds.push(k);
+                }
+            }
+            self.candidates.push(Cand::new(i, Partner::Body(j)));
+        }
+        if self.plan.statics || self.plan.terrain {
+            for i in 0..n {
+                if !self.moving[i] {
+                    continue;
+                }
+                self.static_partners(w, i as u32, self.aabbs[i]);
+                self.candidates.extend(self.partner_buf.iter().map(|&p| Cand::new(i as u32, p)));
+            }
+        }
+        if !self.wake_seeds.is_empty() {
+            self.islands.wake(w, &self.wake_seeds);
+        }
+    }
+
+    /// The static bodies and terrain body `i` can meet within `aabb`, into `partner_buf`.
+    pub(super) fn static_partners(&mut self, w: &World, i: u32, aabb: Aabb) {
+        let b = &w.bodies;
+        self.partner_buf.clear();
+        if self.plan.statics {
+            w.statics.index.query(&aabb, &mut self.static_buf);
+            for &s in &self.static_buf {
+                if w.config.classes.rule(b.class[i as usize], w.statics.class[s as usize]) != Rule::Ignore {
+                    self.partner_buf.push(Partner::Static(s));
+                }
+            }
+        }
+        if let Some(t) = &w.statics.terrain {
+            if t.field.aabb().overlaps(&aabb) && w.config.classes.rule(b.class[i as usize], t.class) != Rule::Ignore {
+                self.partner_buf.push(Partner::Terrain);
+            }
+        }
+    }
+
+    /// Adds a pair found mid-step to `candidates`. A pair found again is listed again, on
+    /// purpose: the settle passes walk this list, and the repeats (pairs around bodies that were
+    /// pushed or re-routed) give the busiest contacts more Gauss-Seidel iterations. Removing them
+    /// made a 1,000-ball pile 1.5x faster but left 1.6 % of a radius of penetration instead of
+    /// 0.02 %, and four times the passes did not recover it (0.43 %).
+    pub(super) fn add_candidate(&mut self, a: u32, b: Partner) {
+        self.candidates.push(Cand::new(a, b));
+    }
+
+    /// A body's path changed mid-step: test its new path against everything it can reach.
+    pub(super) fn requery(&mut self, w: &World, body: u32, tests: &mut u32) {
+        let i = body as usize;
+        if self.dead[i] {
+            return;
+        }
+        let b = &w.bodies;
+        let t = self.t0[i];
+        let p_now = self.base[i];
+        let p_end = self.pos_at(w, i, 1.0);
+        let a0 = b.shape[i].world_aabb(p_now, b.rot[i]);
+        let swept = a0.union(&a0.translated(p_end - p_now)).inflated(w.config.contact_slop_m);
+        // Other dynamic bodies: their full-step boxes still bound them unless they changed too,
+        // in which case they were (or will be) re-queried themselves.
+        let mut buf = std::mem::take(&mut self.query_buf);
+        self.broadphase.query(&self.aabbs, &swept, &mut buf);
+        for &j in &buf {
+            if j == body || self.dead[j as usize] {
+                continue;
+            }
+            if w.config.classes.rule(b.class[i], b.class[j as usize]) == Rule::Ignore {
+                continue;
+            }
+            let (lo, hi) = (body.min(j), body.max(j));
+            let from = t.max(self.t0[j as usize]);
+            if let Some(imp) = self.impact(w, lo, Partner::Body(hi), from, tests) {
+                self.schedule(w, imp);
+            }
+        }
+        self.query_buf = buf;
+        self.aabbs[i] = self.aabbs[i].union(&swept);
+        if self.plan.statics || self.plan.terrain {
+            self.static_partners(w, body, swept);
+            for k in 0..self.partner_buf.len() {
+                let p = self.partner_buf[k];
+                if let Some(imp) = self.impact(w, body, p, t, tests) {
+                    self.schedule(w, imp);
+                }
+                self.add_candidate(body, p);
+            }
+        }
+        // Make sure the pair list used for end-of-tick touching includes new partners.
+        for k in 0..self.query_buf.len() {
+            let j = self.query_buf[k];
+            if j != body && !self.dead[j as usize] {
+                self.add_candidate(body.min(j), Partner::Body(body.max(j)));
+            }
+        }
+    }
+}

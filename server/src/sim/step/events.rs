@@ -1,0 +1,210 @@
+//! Stage 6, events: the touching set at the end of the tick, merged with the one before it and
+//! the tick's impacts into begin and end events.
+
+use super::{ordered, response_of, PairRecord, Partner, Stepper, TickOutput};
+use crate::sim::world::{Touch, World};
+use glam::DVec3;
+use impact_protocol::{CollisionEvent, EntityId, EventStatus, Phase, Response};
+
+impl Stepper {
+    /// Builds the touching set at the end of the tick and turns the tick's story into begin,
+    /// end and destroy events, and removes the destroyed bodies.
+    pub(super) fn finish_events(&mut self, w: &mut World, out: &mut TickOutput) {
+        let cfg = w.config.clone();
+        let slop = cfg.contact_slop_m;
+        let tick = w.tick;
+        let b = &w.bodies;
+        // Touching at the end: every candidate pair still alive, within the slop. A pair whose
+        // paths never changed reuses the end contact found with its time of impact. (Pairs
+        // found twice mid-step give duplicate entries, removed below.)
+        self.touching_now.clear();
+        let mut end_records = std::mem::take(&mut self.end_records);
+        end_records.clear();
+        for cand in &self.candidates {
+            let (a, p) = (cand.a, cand.b);
+            let i = a as usize;
+            if self.dead[i] || matches!(p, Partner::Body(j) if self.dead[j as usize]) {
+                continue;
+            }
+            let (id_b, class_b) = match p {
+                Partner::Body(j) => (b.id[j as usize], b.class[j as usize]),
+                Partner::Static(s) => (w.statics.id[s as usize], w.statics.class[s as usize]),
+                Partner::Terrain => {
+                    let t = w.statics.terrain.as_ref().expect("terrain");
+                    (t.id, t.class)
+                }
+            };
+            let pa = b.pos[i];
+            let pb = match p {
+                Partner::Body(j) => b.pos[j as usize],
+                Partner::Static(s) => w.statics.pos[s as usize],
+                Partner::Terrain => DVec3::ZERO,
+            };
+            let unchanged = cand.end_valid
+                && self.version[i] == 0
+                && !matches!(p, Partner::Body(j) if self.version[j as usize] != 0);
+            let end = if unchanged { cand.end } else { self.contact(w, i, pa, p, pb, slop) };
+            if let Some(c) = end {
+                let vb = match p {
+                    Partner::Body(j) => b.vel[j as usize],
+                    _ => DVec3::ZERO,
+                };
+                end_records.push(PairRecord {
+                    key: (b.id[i], id_b),
+                    t: 1.0,
+                    point: pa + c.point,
+                    normal_lo_hi: c.normal,
+                    depth: c.depth.max(0.0),
+                    closing: -(vb - b.vel[i]).dot(c.normal),
+                    response: response_of(cfg.classes.rule(b.class[i], class_b)),
+                });
+            }
+        }
+        // Three sorted lists, walked together by pair key: P, the pairs touching before; E, the
+        // pairs touching now that were tested (`end_records`); R, this tick's impacts (the
+        // first per pair). A linear merge instead of a lookup per pair keeps this stage O(n).
+        // E is sorted as 16-byte (packed key, index) entries rather than 88-byte records; of
+        // a pair tested twice, the first tested stays.
+        let key_of = |r: &PairRecord| ordered(r.key.0, r.key.1);
+        let pack = |(a, b): (EntityId, EntityId)| u64::from(a.0) << 32 | u64::from(b.0);
+        let unpack = |k: u64| (EntityId((k >> 32) as u32), EntityId(k as u32));
+        let mut end_order = std::mem::take(&mut self.end_order);
+        end_order.clear();
+        end_order.extend(end_records.iter().enumerate().map(|(k, r)| (pack(key_of(r)), k as u32)));
+        end_order.sort_unstable();
+        end_order.dedup_by_key(|e| e.0);
+        self.records.sort_by(|x, y| key_of(x).cmp(&key_of(y)).then(x.t.total_cmp(&y.t)));
+        self.records.dedup_by(|x, y| key_of(x) == key_of(y)); // keeps the earliest impact
+                                                              // Resting pairs were not candidates: they keep touching while both ends stay put.
+        let still = |id: EntityId| match b.slot(id) {
+            Some(s) => !self.dead[s] && !self.moving[s],
+            None => true, // static or terrain
+        };
+        let prev = &w.touching;
+        let (mut ip, mut ie, mut ir) = (0, 0, 0);
+        loop {
+            let kp = prev.get(ip).map(Touch::key);
+            let ke = end_order.get(ie).map(|e| unpack(e.0));
+            let kr = self.records.get(ir).map(key_of);
+            let Some(key) = [kp, ke, kr].into_iter().flatten().min() else { break };
+            let was = kp == Some(key);
+            let tested = ke == Some(key);
+            let impact = if kr == Some(key) { Some(self.records[ir]) } else { None };
+            let end = if tested { Some(end_records[end_order[ie].1 as usize]) } else { None };
+            let now = tested || (was && impact.is_none() && still(key.0) && still(key.1));
+            if now {
+                // The contact cache: a tested pair's normal from this tick, a resting pair's
+                // from when it was last tested. Normals point from the lower id to the higher.
+                let normal = match end {
+                    Some(e) if e.key.0 <= e.key.1 => e.normal_lo_hi,
+                    Some(e) => -e.normal_lo_hi,
+                    None => prev[ip].normal,
+                };
+                self.touching_now.push(Touch { a: key.0, b: key.1, normal });
+            }
+            match (was, impact) {
+                (false, Some(r)) => {
+                    // A new contact: it begins at its time of impact, and ends in the same tick
+                    // if the pair bounced apart.
+                    out.events.push(event(tick, &r, Phase::Begin));
+                    if !now {
+                        out.events.push(event(tick, &r, Phase::End));
+                    }
+                }
+                (false, None) => {
+                    if let Some(e) = end {
+                        // Touching now with no impact (slid or grew into contact).
+                        out.events.push(event(tick, &e, Phase::Begin));
+                    }
+                }
+                (true, Some(r)) => {
+                    // A continuing contact: only its end is news (destroyed, or bounced apart).
+                    if r.response == Response::Destroy || !now {
+                        out.events.push(event(tick, &r, Phase::End));
+                    }
+                }
+                (true, None) => {
+                    if !now {
+                        out.events.push(end_without_contact(w, tick, key, &self.dead));
+                    }
+                }
+            }
+            ip += usize::from(was);
+            ie += usize::from(tested);
+            ir += usize::from(impact.is_some());
+        }
+        sort_events(&mut out.events);
+        w.touching.clear();
+        w.touching.extend_from_slice(&self.touching_now);
+        self.end_records = end_records;
+        self.end_order = end_order;
+        if self.dead.contains(&true) {
+            w.bodies.remove_flagged(&self.dead);
+        }
+    }
+}
+
+/// The order events are published in, `(toi, a, b, phase)`, one per key.
+pub(super) fn sort_events(events: &mut Vec<CollisionEvent>) {
+    events.sort_by(|x, y| x.toi.total_cmp(&y.toi).then(x.a.cmp(&y.a)).then(x.b.cmp(&y.b)).then(x.phase.cmp(&y.phase)));
+    events.dedup_by(|x, y| x.key() == y.key());
+}
+
+fn event(tick: impact_protocol::Tick, r: &PairRecord, phase: Phase) -> CollisionEvent {
+    // Events name the lower id first, with the normal pointing from it to the other.
+    let (a, b, normal) =
+        if r.key.0 <= r.key.1 { (r.key.0, r.key.1, r.normal_lo_hi) } else { (r.key.1, r.key.0, -r.normal_lo_hi) };
+    CollisionEvent {
+        tick,
+        toi: r.t.clamp(0.0, 1.0),
+        a,
+        b,
+        point: r.point.to_array(),
+        normal: normal.to_array(),
+        depth_m: r.depth,
+        closing_speed_mps: r.closing,
+        phase,
+        response: r.response,
+        status: EventStatus::Provisional,
+    }
+}
+
+/// An end event for a pair that moved apart so far this tick that it was not even a broadphase
+/// candidate: the point is between the two centres, the normal along them.
+fn end_without_contact(
+    w: &World,
+    tick: impact_protocol::Tick,
+    key: (EntityId, EntityId),
+    dead: &[bool],
+) -> CollisionEvent {
+    let pos = |id: EntityId| -> DVec3 {
+        if let Some(s) = w.bodies.slot(id) {
+            return w.bodies.pos[s];
+        }
+        match w.statics.id.binary_search(&id) {
+            Ok(s) => w.statics.pos[s],
+            Err(_) => DVec3::ZERO,
+        }
+    };
+    let (pa, ca) = (pos(key.0), w.class_of(key.0));
+    let (pb, cb) = (pos(key.1), w.class_of(key.1));
+    let destroyed = [key.0, key.1].iter().any(|id| w.bodies.slot(*id).is_some_and(|s| dead[s]));
+    let response = match (ca, cb) {
+        _ if destroyed => Response::Destroy,
+        (Some(a), Some(b)) => response_of(w.config.classes.rule(a, b)),
+        _ => Response::Trigger,
+    };
+    CollisionEvent {
+        tick,
+        toi: 1.0,
+        a: key.0,
+        b: key.1,
+        point: ((pa + pb) * 0.5).to_array(),
+        normal: (pb - pa).normalize_or(DVec3::Y).to_array(),
+        depth_m: 0.0,
+        closing_speed_mps: 0.0,
+        phase: Phase::End,
+        response,
+        status: EventStatus::Provisional,
+    }
+}

@@ -1,0 +1,117 @@
+//! The end-of-tick settle: what time-of-impact resolution left overlapping in piles and stacks.
+
+use super::{Cand, Partner, Stepper};
+use crate::sim::world::{Rule, World};
+use glam::DVec3;
+
+/// Gauss-Seidel passes of the end-of-tick settle.
+const SETTLE_PASSES: u32 = 16;
+
+impl Stepper {
+    /// Moves every body to the end of its path, then settles what the time-of-impact resolution left overlapping: a few Gauss-Seidel passes
+    /// over the tick's pairs push apart any pair deeper than the contact slop (back to half the
+    /// slop, in proportion to the inverse masses) and remove its approaching normal velocity
+    /// (inelastic). Impacts are resolved exactly, in time order, before this; what remains is
+    /// resting contact in piles and stacks, which sequential impacts alone cannot hold (each push
+    /// drives a body into its other neighbours). Bounded: `SETTLE_PASSES` passes.
+    pub(super) fn settle(&mut self, w: &mut World) {
+        // Every body to the end of its path.
+        let dt = w.config.dt;
+        let b = &mut w.bodies;
+        for i in 0..b.len() {
+            b.pos[i] = self.base[i] + b.vel[i] * ((1.0 - self.t0[i]) * dt);
+        }
+        let slop = w.config.contact_slop_m;
+        for _ in 0..SETTLE_PASSES {
+            let mut moved = false;
+            for k in 0..self.candidates.len() {
+                let Cand { a, b: p, end, end_valid } = self.candidates[k];
+                let i = a as usize;
+                if self.dead[i] || matches!(p, Partner::Body(j) if self.dead[j as usize]) {
+                    continue;
+                }
+                // A pair neither of whose paths changed keeps the end contact found with its time
+                // of impact (same positions, same kernel): clear of the slop there, nothing to do.
+                let unchanged = end_valid
+                    && self.version[i] == 0
+                    && !matches!(p, Partner::Body(j) if self.version[j as usize] != 0);
+                if unchanged && end.is_none_or(|c| c.depth <= slop) {
+                    continue;
+                }
+                let (ca, cb) = self.class_pair(w, a, p);
+                if !matches!(w.config.classes.rule(ca, cb), Rule::Bounce { .. } | Rule::Slide | Rule::Stop) {
+                    continue;
+                }
+                let pa = w.bodies.pos[i];
+                let (pb, inv_mb) = match p {
+                    Partner::Body(j) => (w.bodies.pos[j as usize], w.bodies.inv_mass[j as usize]),
+                    Partner::Static(s) => (w.statics.pos[s as usize], 0.0),
+                    Partner::Terrain => (DVec3::ZERO, 0.0),
+                };
+                let Some(c) = self.contact(w, i, pa, p, pb, 0.0) else { continue };
+                if c.depth <= slop {
+                    continue;
+                }
+                let inv_ma = w.bodies.inv_mass[i];
+                let inv_sum = inv_ma + inv_mb;
+                if inv_sum == 0.0 {
+                    continue;
+                }
+                let push = c.normal * (c.depth - 0.5 * slop);
+                w.bodies.pos[i] -= push * (inv_ma / inv_sum);
+                let vb = match p {
+                    Partner::Body(j) => {
+                        w.bodies.pos[j as usize] += push * (inv_mb / inv_sum);
+                        w.bodies.vel[j as usize]
+                    }
+                    _ => DVec3::ZERO,
+                };
+                let closing = -(vb - w.bodies.vel[i]).dot(c.normal);
+                if closing > 0.0 {
+                    let jn = closing / inv_sum;
+                    w.bodies.vel[i] -= c.normal * (jn * inv_ma);
+                    if let Partner::Body(j) = p {
+                        w.bodies.vel[j as usize] += c.normal * (jn * inv_mb);
+                    }
+                }
+                // Their end-of-tick contacts must be recomputed for events.
+                self.version[i] += 1;
+                self.settled.push(a);
+                if let Partner::Body(j) = p {
+                    self.version[j as usize] += 1;
+                    self.settled.push(j);
+                }
+                moved = true;
+            }
+            if !moved {
+                break;
+            }
+            // A body pushed out of one contact may have been pushed into something that was not
+            // a partner this tick: give it the partners its new position reaches.
+            let mut pushed = std::mem::take(&mut self.settled);
+            pushed.sort_unstable();
+            pushed.dedup();
+            for &body in &pushed {
+                let i = body as usize;
+                let here = w.bodies.shape[i].world_aabb(w.bodies.pos[i], w.bodies.rot[i]).inflated(slop);
+                let mut buf = std::mem::take(&mut self.query_buf);
+                self.broadphase.query(&self.aabbs, &here, &mut buf);
+                for &j in &buf {
+                    if j != body && !self.dead[j as usize] {
+                        self.add_candidate(body.min(j), Partner::Body(body.max(j)));
+                    }
+                }
+                self.query_buf = buf;
+                if self.plan.statics || self.plan.terrain {
+                    self.static_partners(w, body, here);
+                    for k in 0..self.partner_buf.len() {
+                        self.add_candidate(body, self.partner_buf[k]);
+                    }
+                    self.aabbs[i] = self.aabbs[i].union(&here);
+                }
+            }
+            pushed.clear();
+            self.settled = pushed;
+        }
+    }
+}
