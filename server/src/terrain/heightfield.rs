@@ -60,6 +60,16 @@ impl HeightField {
         Ok(HeightField { origin, cell_x, cell_z, nx, nz, heights, bounds })
     }
 
+    /// The position of sample `(0, 0)` at height 0, m.
+    pub fn origin(&self) -> DVec3 {
+        self.origin
+    }
+
+    /// Samples along x and z, and the heights, row-major by z (`heights[iz * nx + ix]`), m.
+    pub fn samples(&self) -> (usize, usize, &[f64]) {
+        (self.nx, self.nz, &self.heights)
+    }
+
     /// Cell size `(x, z)`, m.
     pub fn cell_size(&self) -> (f64, f64) {
         (self.cell_x, self.cell_z)

@@ -6,6 +6,7 @@ mod accuracy;
 mod kernels;
 mod plan;
 mod report;
+mod rest;
 mod rollback;
 mod scale;
 mod stability;
@@ -36,6 +37,9 @@ enum Suite {
     Accuracy(accuracy::AccuracyArgs),
     /// Each analytic pair kernel against parry's general path: time, depth agreement, symmetry.
     Kernels(kernels::KernelsArgs),
+    /// Bodies at rest under gravity (standing, a pile, a yard): impact against rapier's full
+    /// physics pipeline with sleeping.
+    Rest(rest::RestArgs),
     /// Numerical stress cases (far from the origin, scale, degenerate, speed, pile, energy,
     /// rollback).
     Stability(stability::StabilityArgs),
@@ -52,5 +56,6 @@ fn main() -> Result<()> {
         Suite::Accuracy(a) => accuracy::run(&a),
         Suite::Kernels(a) => kernels::run(&a),
         Suite::Stability(a) => stability::run(&a),
+        Suite::Rest(a) => rest::run(&a),
     }
 }
