@@ -224,6 +224,11 @@ pub struct Touch {
     pub b: EntityId,
     /// Unit contact normal, world frame, pointing from `a` to `b`.
     pub normal: DVec3,
+    /// Overlap at the end of the tick, m (0 when only within the slop).
+    pub depth: f64,
+    /// Normal impulse the resting-contact solver last needed to hold the pair, N s (its warm
+    /// start at the next tick; 0 for a new contact).
+    pub impulse: f64,
 }
 
 impl Touch {
@@ -339,6 +344,11 @@ impl Bodies {
         keep(&mut t.owner, dead);
     }
 
+    /// Velocities to write and the constants beside them, borrowed together.
+    pub fn vel_and_table(&mut self) -> (&mut [DVec3], &BodyTable) {
+        (&mut self.vel, &self.table)
+    }
+
     /// Whether two body sets share the same table (same bodies, same constants).
     pub fn same_table(&self, other: &Bodies) -> bool {
         Arc::ptr_eq(&self.table, &other.table)
@@ -417,6 +427,8 @@ impl World {
             h.f64(t.normal.x);
             h.f64(t.normal.y);
             h.f64(t.normal.z);
+            h.f64(t.depth);
+            h.f64(t.impulse);
         }
         h.finish()
     }

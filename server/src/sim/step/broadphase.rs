@@ -12,8 +12,13 @@ impl Stepper {
     /// sleeping body that a moving body's swept box reaches wakes with its island; it is tested
     /// this tick where it lies, like static geometry, and integrated from the next.
     pub(super) fn find_candidates(&mut self, w: &mut World) {
-        self.broadphase.pairs(&self.aabbs, &mut self.pairs);
         self.candidates.clear();
+        if !self.moving.contains(&true) {
+            // Awake but all at rest (held by their supports): no pair can change.
+            self.pairs.clear();
+            return;
+        }
+        self.broadphase.pairs(&self.aabbs, &mut self.pairs);
         self.wake_seeds.clear();
         let cfg = &w.config;
         let b = &w.bodies;

@@ -95,12 +95,14 @@ impl Stepper {
             if now {
                 // The contact cache: a tested pair's normal from this tick, a resting pair's
                 // from when it was last tested. Normals point from the lower id to the higher.
-                let normal = match end {
-                    Some(e) if e.key.0 <= e.key.1 => e.normal_lo_hi,
-                    Some(e) => -e.normal_lo_hi,
-                    None => prev[ip].normal,
+                let (normal, depth) = match end {
+                    Some(e) if e.key.0 <= e.key.1 => (e.normal_lo_hi, e.depth),
+                    Some(e) => (-e.normal_lo_hi, e.depth),
+                    None => (prev[ip].normal, prev[ip].depth),
                 };
-                self.touching_now.push(Touch { a: key.0, b: key.1, normal });
+                // The resting solver's impulse carries over while the contact lasts.
+                let impulse = if was { self.contact_impulse.get(ip).copied().unwrap_or(0.0) } else { 0.0 };
+                self.touching_now.push(Touch { a: key.0, b: key.1, normal, depth, impulse });
             }
             match (was, impact) {
                 (false, Some(r)) => {

@@ -4,10 +4,11 @@
 //! result.
 //!
 //! [`Stepper::step_with`] reads as the list of stages; each stage is a file here, and its timer
-//! in [`StageStats`] has the file's name: `integrate`, `broadphase`, `narrowphase`, `resolve`,
-//! `settle`, `events`.
+//! in [`StageStats`] has the file's name: `integrate`, `contacts`, `broadphase`, `narrowphase`,
+//! `resolve`, `settle`, `events`, `sleep`.
 
 mod broadphase;
+mod contacts;
 mod events;
 mod integrate;
 mod narrowphase;
@@ -43,9 +44,11 @@ pub enum Partner {
 pub struct StageStats {
     /// Applying inputs (and ray queries).
     pub inputs: Duration,
-    /// Integration and swept bounds.
+    /// Wakes and gravity.
     pub integrate: Duration,
-    /// Broadphase.
+    /// The resting-contact solver.
+    pub contacts: Duration,
+    /// Swept bounds and broadphase.
     pub broadphase: Duration,
     /// Narrowphase and time of impact.
     pub narrowphase: Duration,
@@ -79,10 +82,11 @@ pub struct StageStats {
 
 impl StageStats {
     /// `(name, total time)` per stage, in tick order.
-    pub fn stages(&self) -> [(&'static str, Duration); 8] {
+    pub fn stages(&self) -> [(&'static str, Duration); 9] {
         [
             ("inputs", self.inputs),
             ("integrate", self.integrate),
+            ("contacts", self.contacts),
             ("broadphase", self.broadphase),
             ("narrowphase", self.narrowphase),
             ("resolve", self.resolve),
@@ -217,8 +221,8 @@ pub struct Stepper {
     awake: usize,
     wake_seeds: Vec<u32>,
     islands: crate::sim::island::Islands,
-    supports: Vec<integrate::Support>,
-    support_done: Vec<bool>,
+    rows: Vec<contacts::Row>,
+    contact_impulse: Vec<f64>,
 }
 
 impl Stepper {
@@ -255,8 +259,8 @@ impl Stepper {
             awake: 0,
             wake_seeds: Vec::new(),
             islands: Default::default(),
-            supports: Vec::new(),
-            support_done: Vec::new(),
+            rows: Vec::new(),
+            contact_impulse: Vec::new(),
         }
     }
 
@@ -309,9 +313,13 @@ impl Stepper {
         input::apply_system(w, system, out);
         input::apply(w, inputs, out);
         self.lap(&mut clock, |s| &mut s.inputs, &mut stats);
-        // 2. Wakes, gravity and support, constant velocity over the step, swept bounds.
-        self.integrate(w, first_new);
+        // 2. Wakes and gravity.
+        self.integrate(w);
         self.lap(&mut clock, |s| &mut s.integrate, &mut stats);
+        // 3. Resting contacts held before anything moves.
+        self.solve_contacts(w);
+        self.lap(&mut clock, |s| &mut s.contacts, &mut stats);
+        self.swept_bounds(w, first_new);
         if self.awake == 0 {
             // Every body asleep and nothing woke one: nothing can move, touch or end.
             events::sort_events(&mut out.events);
@@ -319,25 +327,26 @@ impl Stepper {
             stats.resolutions = 0;
             stats.toi_tests = 0;
             stats.idle_ticks += 1;
+            self.lap(&mut clock, |s| &mut s.broadphase, &mut stats);
             self.finish_tick(w, clock, stats);
             return;
         }
-        // 3. Pairs that may touch: dynamic pairs, then statics and terrain for moving bodies.
+        // 4. Pairs that may touch: dynamic pairs, then statics and terrain for moving bodies.
         self.find_candidates(w);
         self.lap(&mut clock, |s| &mut s.broadphase, &mut stats);
-        // 4. First contact and end-of-step contact for every candidate.
+        // 5. First contact and end-of-step contact for every candidate.
         self.narrowphase(w, &mut stats);
         self.lap(&mut clock, |s| &mut s.narrowphase, &mut stats);
-        // 5. Impacts in time-of-impact order.
+        // 6. Impacts in time-of-impact order.
         self.resolve_impacts(w, &mut stats);
         self.lap(&mut clock, |s| &mut s.resolve, &mut stats);
-        // 6. Final positions, then what resolution left overlapping.
+        // 7. Final positions, then what resolution left overlapping.
         self.settle(w);
         self.lap(&mut clock, |s| &mut s.settle, &mut stats);
-        // 7. Touching set, begin/end events, removals.
+        // 8. Touching set, begin/end events, removals.
         self.finish_events(w, out);
         self.lap(&mut clock, |s| &mut s.events, &mut stats);
-        // 8. Still timers; islands that stayed still long enough fall asleep.
+        // 9. Still timers; islands that stayed still long enough fall asleep.
         self.sleep(w);
         self.finish_tick(w, clock, stats);
     }
