@@ -1,10 +1,15 @@
 //! impact: an authoritative collision server for multiplayer games.
 //!
-//! - [`sim`]: the deterministic core (world state, the tick, the plan).
+//! - [`sim`]: the deterministic core (world state, the tick one stage per file, islands and
+//!   sleeping, the plan).
 //! - [`broadphase`], [`narrow`], [`toi`], [`terrain`], [`query`]: the collision machinery the
 //!   tick is built from, one concept per module.
 //! - [`scene`]: the scene file format and loader.
 //! - [`offline`]: running a scene with no network (`impact-server --offline`).
+//! - [`rollback`]: the session with history: late inputs, re-simulation, corrections.
+//! - [`runtime`]: the Zenoh runtime (session, tick thread, ingress and egress).
+//! - [`stability`], [`trials`]: numerical stress cases and known-answer trials, shared by the
+//!   tests and `impact-bench`.
 
 pub mod broadphase;
 pub mod narrow;

@@ -159,6 +159,11 @@ pub fn print_summary(r: &OfflineReport, out: &mut impl Write) -> std::io::Result
         "last tick: {} pairs tested, {} impacts resolved, {} overlap tests in TOI searches; bodies frozen by the per-body cap: {}",
         r.stages.pairs_tested, r.stages.resolutions, r.stages.toi_tests, r.stages.frozen
     )?;
+    writeln!(
+        out,
+        "bodies at the end: {} awake, {} asleep; ticks skipped whole (everything asleep): {}",
+        r.stages.awake, r.stages.asleep, r.stages.idle_ticks
+    )?;
     writeln!(out, "time per stage (mean per tick):")?;
     let total: Duration = r.stages.stages().iter().map(|(_, d)| *d).sum();
     for (name, d) in r.stages.stages() {

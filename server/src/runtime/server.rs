@@ -837,9 +837,10 @@ impl TickLoop {
             queue_depth_max: self.period_queue_max,
         };
         if self.opts.verbose {
+            let (awake, asleep) = w.awake_asleep();
             eprintln!(
-                "  tick {} | tick ms p50 {:.3} p99 {:.3} | bodies {} | clients {} | inputs {} | rollbacks {} (depth {}) | events/s {}",
-                stats.tick, stats.tick_ms_p50, stats.tick_ms_p99, stats.bodies, self.clients.len(), stats.inputs_accepted, stats.rollbacks, stats.rollback_depth_max, stats.events_per_s
+                "  tick {} | tick ms p50 {:.3} p99 {:.3} | bodies {} ({} awake, {} asleep) | clients {} | inputs {} | rollbacks {} (depth {}) | events/s {}",
+                stats.tick, stats.tick_ms_p50, stats.tick_ms_p99, stats.bodies, awake, asleep, self.clients.len(), stats.inputs_accepted, stats.rollbacks, stats.rollback_depth_max, stats.events_per_s
             );
         }
         self.put(keys::STATS.key(&self.world, None), &ServerMessage::Stats(stats), self.opts.encoding);

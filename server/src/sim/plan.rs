@@ -30,6 +30,8 @@ pub struct Plan {
     pub gravity: bool,
     /// Rollback stage (window > 0 ticks).
     pub rollback: bool,
+    /// Islands fall asleep after this many still ticks (0: never).
+    pub sleep_after_ticks: u32,
 }
 
 /// Below this many bodies brute force beats building any structure.
@@ -76,6 +78,7 @@ impl Plan {
             ccd_sampling,
             gravity: cfg.gravity != glam::DVec3::ZERO,
             rollback: cfg.window_ticks > 0,
+            sleep_after_ticks: cfg.sleep_after_ticks,
         }
     }
 
@@ -103,6 +106,20 @@ impl fmt::Display for Plan {
         writeln!(f, "  terrain pass    {}", on(self.terrain))?;
         writeln!(f, "  ccd sampling    {}", on(self.ccd_sampling))?;
         writeln!(f, "  gravity         {}", on(self.gravity))?;
+        writeln!(
+            f,
+            "  resting contact {}",
+            if self.gravity { "solved before the step (warm-started, cached contacts)" } else { "skipped" }
+        )?;
+        if self.sleep_after_ticks == 0 {
+            writeln!(f, "  sleeping        off")?;
+        } else {
+            writeln!(
+                f,
+                "  sleeping        islands still for {} ticks; sleepers are obstacles only",
+                self.sleep_after_ticks
+            )?;
+        }
         writeln!(f, "  rollback        {}", on(self.rollback))?;
         write!(f, "  always          static-static pairs never tested; resting pairs not re-tested")
     }

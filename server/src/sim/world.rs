@@ -388,7 +388,8 @@ impl World {
 
     /// Bodies awake and asleep.
     pub fn awake_asleep(&self) -> (usize, usize) {
-        let asleep = self.bodies.asleep.iter().filter(|a| **a).count();
+        let flags = &self.bodies.asleep;
+        let asleep = if flags.contains(&true) { flags.iter().filter(|a| **a).count() } else { 0 };
         (self.bodies.len() - asleep, asleep)
     }
 

@@ -12,9 +12,13 @@ impl Stepper {
     /// `self.awake`.
     pub(super) fn integrate(&mut self, w: &mut World) {
         // A sleeping body an input (or a spawn's push) gave a velocity wakes with its island.
+        // (Most worlds in motion have no sleeper: one fast scan of the flags settles that.)
         self.wake_seeds.clear();
         let b = &w.bodies;
-        self.wake_seeds.extend((0..b.len()).filter(|&i| b.asleep[i] && b.vel[i] != DVec3::ZERO).map(|i| i as u32));
+        let any_asleep = b.asleep.contains(&true);
+        if any_asleep {
+            self.wake_seeds.extend((0..b.len()).filter(|&i| b.asleep[i] && b.vel[i] != DVec3::ZERO).map(|i| i as u32));
+        }
         if !self.wake_seeds.is_empty() {
             self.islands.wake(w, &self.wake_seeds);
         }
@@ -22,7 +26,7 @@ impl Stepper {
         let dt = cfg.dt;
         let n = w.bodies.len();
         let b = &mut w.bodies;
-        self.awake = b.asleep.iter().filter(|a| !**a).count();
+        self.awake = if any_asleep { b.asleep.iter().filter(|a| !**a).count() } else { n };
         if self.plan.gravity {
             for i in 0..n {
                 if !b.asleep[i] && b.inv_mass[i] > 0.0 && cfg.classes.props[b.class[i].0 as usize].gravity {
