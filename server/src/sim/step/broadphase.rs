@@ -1,4 +1,4 @@
-//! Stage 3, broadphase: the pairs that may touch during the step, from swept bounds, and the
+//! Stage 4, broadphase: the pairs that may touch during the step, from swept bounds, and the
 //! static geometry and terrain each moving body can reach; bodies whose paths change mid-step
 //! are queried again.
 

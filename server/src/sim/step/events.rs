@@ -1,4 +1,4 @@
-//! Stage 6, events: the touching set at the end of the tick, merged with the one before it and
+//! Stage 8, events: the touching set at the end of the tick, merged with the one before it and
 //! the tick's impacts into begin and end events.
 
 use super::{ordered, response_of, PairRecord, Partner, Stepper, TickOutput};

@@ -1,4 +1,4 @@
-//! Stage 4, narrowphase and time of impact: for every candidate pair, the first contact over
+//! Stage 5, narrowphase and time of impact: for every candidate pair, the first contact over
 //! the step (the analytic swept sphere for two spheres, conservative advancement then sampling
 //! and bisection for the rest) and the contact at the end of the step on the current paths.
 

@@ -1,4 +1,4 @@
-//! Stage 5, resolution: impacts in time-of-impact order, each moving its pair to the contact
+//! Stage 6, resolution: impacts in time-of-impact order, each moving its pair to the contact
 //! and answering by the rule for their classes (bounce, slide, stop, destroy, trigger); a body
 //! whose path changes is searched again against everything its new path can reach.
 

@@ -1,4 +1,4 @@
-//! The end-of-tick settle: what time-of-impact resolution left overlapping in piles and stacks.
+//! Stage 7, settle: what time-of-impact resolution left overlapping in piles and stacks.
 
 use super::{Cand, Partner, Stepper};
 use crate::sim::world::{Rule, World};

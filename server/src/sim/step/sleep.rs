@@ -1,4 +1,4 @@
-//! Stage 8, sleep: still timers, islands, and the islands that fall asleep. The rules are in
+//! Stage 9, sleep: still timers, islands, and the islands that fall asleep. The rules are in
 //! [`crate::sim::island`]; this stage only runs them at the end of the tick.
 
 use super::Stepper;
