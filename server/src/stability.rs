@@ -248,7 +248,8 @@ pub fn pile_scene(n: u32) -> (Scene, f64) {
 }
 
 /// A pile of `n` spheres under gravity in a box for `ticks` ticks: no body leaves the box,
-/// penetration stays under 1 % of the radius, no velocity explodes.
+/// penetration stays under 1 % of the radius, no velocity explodes, and by the end every body
+/// is asleep.
 pub fn pile(n: u32, ticks: u32) -> CaseResult {
     let mut r = CaseResult::new("pile");
     let radius = 0.5;
@@ -302,11 +303,13 @@ pub fn pile(n: u32, ticks: u32) -> CaseResult {
     r.fig("worst_pair_tick", f64::from(worst_tick));
     r.fig("max_speed_mps", worst_speed);
     r.fig("bodies_outside", f64::from(left));
-    r.fig("awake_at_end", w.awake_asleep().0 as f64);
+    let awake = w.awake_asleep().0;
+    r.fig("awake_at_end", awake as f64);
     r.require(finite, "non-finite values");
     r.require(left == 0, format!("{left} body-ticks outside the box"));
     r.require(worst_pen < 0.01 * radius, format!("penetration {:.3}% of the radius", 100.0 * worst_pen / radius));
     r.require(worst_speed < 50.0, format!("a velocity reached {worst_speed:.1} m/s"));
+    r.require(awake == 0, format!("{awake} bodies still awake at the end: the pile never came to rest"));
     r
 }
 

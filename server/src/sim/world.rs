@@ -229,6 +229,8 @@ pub struct Touch {
     /// Normal impulse the resting-contact solver last needed to hold the pair, N s (its warm
     /// start at the next tick; 0 for a new contact).
     pub impulse: f64,
+    /// Friction impulse it last needed, N s, world frame (its warm start likewise).
+    pub friction_impulse: DVec3,
 }
 
 impl Touch {
@@ -430,6 +432,9 @@ impl World {
             h.f64(t.normal.z);
             h.f64(t.depth);
             h.f64(t.impulse);
+            for c in t.friction_impulse.to_array() {
+                h.f64(c);
+            }
         }
         h.finish()
     }

@@ -7,7 +7,7 @@
 //! rotation, since impact's orientations are fixed): every cached contact gets a normal impulse
 //! that is never negative (contacts push, never pull) and removes the pair's approach along the
 //! normal, inelastically, and a Coulomb friction impulse bounded by `friction` times it.
-//! Impulses are warm-started from the ones the same contact needed the tick before (stored in
+//! Normal and friction impulses are warm-started from the ones the same contact needed the tick before (stored in
 //! the cache, so they are world state like everything else), which is what lets a pile hold
 //! its weight with a few iterations. Sleeping bodies, static geometry and terrain are
 //! immovable here.
@@ -60,7 +60,7 @@ impl Stepper {
     pub(super) fn solve_contacts(&mut self, w: &mut World) {
         // Contacts not solved this tick (between sleepers, say) keep their impulse.
         self.contact_impulse.clear();
-        self.contact_impulse.extend(w.touching.iter().map(|t| t.impulse));
+        self.contact_impulse.extend(w.touching.iter().map(|t| (t.impulse, t.friction_impulse)));
         if !self.plan.gravity || w.touching.is_empty() || self.awake == 0 {
             return;
         }
@@ -92,14 +92,15 @@ impl Stepper {
                 mass: 1.0 / (inv(a) + inv(bb)),
                 bias,
                 normal_impulse: t.impulse,
-                friction_impulse: DVec3::ZERO,
+                // Last tick's friction, in this tick's tangent plane.
+                friction_impulse: t.friction_impulse - t.normal * t.friction_impulse.dot(t.normal),
             });
         }
         let (v, table) = w.bodies.vel_and_table();
         let inv_mass = &table.inv_mass;
         // Warm start: last tick's impulses first.
         for r in &self.rows {
-            apply(v, inv_mass, r, r.normal * r.normal_impulse);
+            apply(v, inv_mass, r, r.normal * r.normal_impulse + r.friction_impulse);
         }
         for _ in 0..ITERATIONS {
             for r in self.rows.iter_mut() {
@@ -125,7 +126,7 @@ impl Stepper {
             }
         }
         for r in &self.rows {
-            self.contact_impulse[r.index as usize] = r.normal_impulse;
+            self.contact_impulse[r.index as usize] = (r.normal_impulse, r.friction_impulse);
             for s in [r.a, r.b].into_iter().flatten() {
                 let u = &mut v[s as usize];
                 if u.length_squared() < REST_SPEED_MPS * REST_SPEED_MPS {

@@ -101,8 +101,9 @@ impl Stepper {
                     None => (prev[ip].normal, prev[ip].depth),
                 };
                 // The resting solver's impulse carries over while the contact lasts.
-                let impulse = if was { self.contact_impulse.get(ip).copied().unwrap_or(0.0) } else { 0.0 };
-                self.touching_now.push(Touch { a: key.0, b: key.1, normal, depth, impulse });
+                let (impulse, friction_impulse) =
+                    if was { self.contact_impulse.get(ip).copied().unwrap_or_default() } else { Default::default() };
+                self.touching_now.push(Touch { a: key.0, b: key.1, normal, depth, impulse, friction_impulse });
             }
             match (was, impact) {
                 (false, Some(r)) => {

@@ -222,7 +222,7 @@ pub struct Stepper {
     wake_seeds: Vec<u32>,
     islands: crate::sim::island::Islands,
     rows: Vec<contacts::Row>,
-    contact_impulse: Vec<f64>,
+    contact_impulse: Vec<(f64, DVec3)>,
 }
 
 impl Stepper {
