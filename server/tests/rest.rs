@@ -178,14 +178,20 @@ fn input(t: u32, ball: EntityId) -> Option<ClientInput> {
     })
 }
 
+/// A session on `scene` with a 24-tick window, re-simulating selectively or in full.
+fn session(scene: &Scene, selective: bool) -> Session {
+    let mut cfg = RollbackConfig::for_world(&scene.world);
+    cfg.window_ticks = 24;
+    cfg.selective = selective;
+    Session::new(scene.world.clone(), Plan::for_world(&scene.world), cfg)
+}
+
 #[test]
 fn rollback_across_sleep_and_wake_equals_the_on_time_run() {
     let scene = yard(0.5, true);
     let ball = BALL;
-    let mut cfg = RollbackConfig::for_world(&scene.world);
-    cfg.window_ticks = 24;
-    let mut on_time = Session::new(scene.world.clone(), Plan::for_world(&scene.world), cfg.clone());
-    let mut late = Session::new(scene.world.clone(), Plan::for_world(&scene.world), cfg);
+    let mut on_time = session(&scene, false);
+    let mut late = session(&scene, false);
     let (mut transitions, mut was_asleep, mut compared) = (0, 0usize, 0);
     for t in 0..400u32 {
         if let Some(i) = input(t, ball) {
@@ -216,11 +222,8 @@ fn rollback_across_sleep_and_wake_equals_the_on_time_run() {
 fn selective_equals_full_with_sleeping_bodies() {
     let scene = yard(0.5, true);
     let ball = BALL;
-    let mut cfg = RollbackConfig::for_world(&scene.world);
-    cfg.window_ticks = 24;
-    let mut full = Session::new(scene.world.clone(), Plan::for_world(&scene.world), cfg.clone());
-    cfg.selective = true;
-    let mut sel = Session::new(scene.world.clone(), Plan::for_world(&scene.world), cfg);
+    let mut full = session(&scene, false);
+    let mut sel = session(&scene, true);
     let mut max_asleep = 0;
     for t in 0..400u32 {
         if t >= 6 {

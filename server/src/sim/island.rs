@@ -31,18 +31,22 @@ impl Islands {
     /// to one of them through touching sleeping bodies wakes, keeping its zero velocity, with its
     /// still timer reset. Returns how many bodies woke.
     pub fn wake(&mut self, w: &mut World, seeds: &[u32]) -> usize {
+        /// Wakes slot `s` if it sleeps; whether it did.
+        fn wake_one(b: &mut crate::sim::world::Bodies, woken: &mut [bool], s: usize) -> bool {
+            if !b.asleep[s] {
+                return false;
+            }
+            b.asleep[s] = false;
+            b.still_ticks[s] = 0;
+            woken[s] = true;
+            true
+        }
         let b = &mut w.bodies;
         self.woken.clear();
         self.woken.resize(b.len(), false);
         let mut count = 0;
         for &s in seeds {
-            let s = s as usize;
-            if b.asleep[s] {
-                b.asleep[s] = false;
-                b.still_ticks[s] = 0;
-                self.woken[s] = true;
-                count += 1;
-            }
+            count += usize::from(wake_one(b, &mut self.woken, s as usize));
         }
         if count == 0 {
             return 0;
@@ -56,10 +60,7 @@ impl Islands {
             for &(i, j) in &self.pairs {
                 let (i, j) = (i as usize, j as usize);
                 for (from, to) in [(i, j), (j, i)] {
-                    if self.woken[from] && b.asleep[to] {
-                        b.asleep[to] = false;
-                        b.still_ticks[to] = 0;
-                        self.woken[to] = true;
+                    if self.woken[from] && wake_one(b, &mut self.woken, to) {
                         count += 1;
                         spread = true;
                     }

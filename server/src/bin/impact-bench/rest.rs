@@ -117,7 +117,8 @@ fn penetration(w: &World) -> f64 {
     worst
 }
 
-/// rapier's collider for one of impact's shapes (sphere, capsule, cuboid: what the rest scenes use).
+/// rapier's collider for one of impact's shapes (sphere, capsule, cuboid: what the rest scenes
+/// use).
 fn collider(shape: &Shape) -> Result<ColliderBuilder> {
     Ok(match *shape {
         Shape::Sphere { radius } => ColliderBuilder::ball(radius as f32),

@@ -7,9 +7,9 @@
 //! rotation, since impact's orientations are fixed): every cached contact gets a normal impulse
 //! that is never negative (contacts push, never pull) and removes the pair's approach along the
 //! normal, inelastically, and a Coulomb friction impulse bounded by `friction` times it.
-//! Normal and friction impulses are warm-started from the ones the same contact needed the tick before (stored in
-//! the cache, so they are world state like everything else), which is what lets a pile hold
-//! its weight with a few iterations. Sleeping bodies, static geometry and terrain are
+//! Normal and friction impulses are warm-started from the ones the same contact needed the
+//! tick before (stored in the cache, so they are world state like everything else), which is
+//! what lets a pile hold its weight with a few iterations. Sleeping bodies, static geometry and terrain are
 //! immovable here.
 //!
 //! Only a resting approach is solved: a pair closing faster than one tick of gravity plus the
@@ -55,8 +55,8 @@ pub(super) struct Row {
 }
 
 impl Stepper {
-    /// Solves the cached contacts (see the module doc). Leaves each contact's normal impulse in
-    /// `self.contact_impulse`, by index in `w.touching`, for the contact cache of this tick.
+    /// Solves the cached contacts (see the module doc). Leaves each contact's normal and friction
+    /// impulses in `self.contact_impulse`, by index in `w.touching`, for the contact cache of this tick.
     pub(super) fn solve_contacts(&mut self, w: &mut World) {
         // Contacts not solved this tick (between sleepers, say) keep their impulse.
         self.contact_impulse.clear();

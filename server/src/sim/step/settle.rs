@@ -8,8 +8,8 @@ use glam::DVec3;
 const SETTLE_PASSES: u32 = 16;
 
 impl Stepper {
-    /// Moves every body to the end of its path, then settles what the time-of-impact resolution left overlapping: a few Gauss-Seidel passes
-    /// over the tick's pairs push apart any pair deeper than the contact slop (back to half the
+    /// Moves every body to the end of its path, then settles what the time-of-impact resolution
+    /// left overlapping: a few Gauss-Seidel passes over the tick's pairs push apart any pair deeper than the contact slop (back to half the
     /// slop, in proportion to the inverse masses) and remove its approaching normal velocity
     /// (inelastic). Impacts are resolved exactly, in time order, before this; what remains is
     /// resting contact in piles and stacks, which sequential impacts alone cannot hold (each push
