@@ -20,28 +20,28 @@ use glam::{DQuat, DVec3};
 
 /// Below this `|u·n|` a box axis counts as lying in the plane of `n`: the box's support feature
 /// extends along it (a face or an edge rather than a vertex).
-const FLAT: f64 = 1e-7;
+pub(super) const FLAT: f64 = 1e-7;
 
 /// An edge/edge axis must beat the best face axis by this (relative) margin to be chosen: on a
 /// tie the face gives the larger, steadier contact region.
-const EDGE_BIAS: f64 = 1e-9;
+pub(super) const EDGE_BIAS: f64 = 1e-9;
 
 /// A box in the pair frame: centre, unit axes and half extents.
 #[derive(Clone, Copy)]
-struct Obb {
+pub(super) struct Obb {
     centre: DVec3,
     axes: [DVec3; 3],
     half: DVec3,
 }
 
 impl Obb {
-    fn new(centre: DVec3, rot: DQuat, half: DVec3) -> Obb {
+    pub(super) fn new(centre: DVec3, rot: DQuat, half: DVec3) -> Obb {
         Obb { centre, axes: [rot * DVec3::X, rot * DVec3::Y, rot * DVec3::Z], half }
     }
 
     /// The box's support feature in direction `n` as a convex polygon (1, 2 or 4 vertices, in
     /// order round the boundary).
-    fn support_feature(&self, n: DVec3) -> Poly {
+    pub(super) fn support_feature(&self, n: DVec3) -> Poly {
         let mut fixed = self.centre;
         let mut free = Poly::default();
         for i in 0..3 {
@@ -76,13 +76,13 @@ impl Obb {
 /// A convex polygon of at most eight vertices (a rectangle clipped by a rectangle), kept on
 /// the stack: the kernel runs per pair per query and must not allocate.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-struct Poly {
+pub(super) struct Poly {
     pts: [DVec3; 8],
     len: usize,
 }
 
 impl Poly {
-    fn of(points: &[DVec3]) -> Poly {
+    pub(super) fn of(points: &[DVec3]) -> Poly {
         let mut p = Poly::default();
         for &q in points {
             p.push(q);
@@ -90,16 +90,16 @@ impl Poly {
         p
     }
 
-    fn push(&mut self, p: DVec3) {
+    pub(super) fn push(&mut self, p: DVec3) {
         self.pts[self.len] = p;
         self.len += 1;
     }
 
-    fn as_slice(&self) -> &[DVec3] {
+    pub(super) fn as_slice(&self) -> &[DVec3] {
         &self.pts[..self.len]
     }
 
-    fn is_empty(&self) -> bool {
+    pub(super) fn is_empty(&self) -> bool {
         self.len == 0
     }
 }
@@ -221,7 +221,7 @@ fn face_contact_point(reference: &Obb, axis: usize, incident: &Obb, n: DVec3) ->
 }
 
 /// Clips a convex polygon (or a segment, or a point) to the half-space `p·m <= offset`.
-fn clip(poly: &[DVec3], m: DVec3, offset: f64) -> Poly {
+pub(super) fn clip(poly: &[DVec3], m: DVec3, offset: f64) -> Poly {
     let inside = |p: DVec3| p.dot(m) <= offset;
     let cut = |p: DVec3, q: DVec3| {
         let (dp, dq) = (p.dot(m) - offset, q.dot(m) - offset);
@@ -263,7 +263,7 @@ fn clip(poly: &[DVec3], m: DVec3, offset: f64) -> Poly {
 
 /// Mean of the vertices (the polygons here are at most octagons from clipping a rectangle by a
 /// rectangle; the vertex mean lies inside and is stable, which is all the event needs).
-fn centroid(points: &[DVec3]) -> DVec3 {
+pub(super) fn centroid(points: &[DVec3]) -> DVec3 {
     points.iter().copied().sum::<DVec3>() / points.len() as f64
 }
 

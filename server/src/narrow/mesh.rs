@@ -1,8 +1,8 @@
 //! A convex shape against a static triangle mesh: parry's BVH finds the triangles under the
-//! shape's bounds, then each triangle is tested with the sphere/triangle kernel or GJK, and the
+//! shape's bounds, then each triangle is tested with its kernel ([`super::triangle_contact`]), and the
 //! deepest contact is the pair's contact.
 
-use super::{general, sphere_triangle, Contact};
+use super::Contact;
 use crate::sim::shape::Shape;
 use glam::{DQuat, DVec3};
 use rapier3d::parry;
@@ -26,10 +26,7 @@ pub fn contact(
     for i in mesh.bvh().intersect_aabb(&query) {
         let t = mesh.triangle(i);
         let tri = [d + rm * t.a.as_dvec3(), d + rm * t.b.as_dvec3(), d + rm * t.c.as_dvec3()];
-        let c = match a {
-            Shape::Sphere { radius } => sphere_triangle::contact(*radius, tri[0], tri[1], tri[2]),
-            _ => general::contact_triangle(a, ra, tri, margin),
-        };
+        let c = super::triangle_contact(a, ra, tri, margin);
         if let Some(c) = c.filter(|c| c.depth > -margin) {
             // Deepest wins; ties keep the lower triangle index (the BVH order is fixed for a
             // given mesh, so this is deterministic).

@@ -5,13 +5,14 @@
 //! once in f64, so a pair a million metres from the origin is as accurate as one at the origin.
 //!
 //! Analytic kernels in f64 serve the common pairs (sphere/sphere, sphere/capsule,
-//! capsule/capsule, sphere/box, capsule/box, box/box, sphere/triangle); parry's GJK/EPA (f32, in the pair frame)
-//! serves every other convex pair, and triangle meshes go through parry's BVH to their
+//! capsule/capsule, sphere/box, capsule/box, box/box, sphere/triangle, box/triangle); parry's GJK/EPA
+//! (f32, in the pair frame) serves every other convex pair, and triangle meshes go through parry's BVH to their
 //! triangles. One file per pair, as in parry.
 
 pub mod capsule_capsule;
 pub mod capsule_cuboid;
 pub mod cuboid_cuboid;
+pub mod cuboid_triangle;
 pub mod general;
 pub mod mesh;
 #[cfg(test)]
@@ -126,6 +127,17 @@ pub fn contact(a: &Shape, ra: DQuat, b: &Shape, rb: DQuat, d: DVec3, margin: f64
         _ => return general::contact(a, ra, b, rb, d, margin),
     };
     c.filter(|c| c.depth > -margin)
+}
+
+/// Contact between `a` at the origin and the triangle `tri` (vertices relative to `a`'s centre),
+/// for height fields and meshes: the analytic sphere and box kernels, GJK for the rest. `None`
+/// when they are farther apart than `margin`; the normal points from `a` to the triangle.
+pub fn triangle_contact(a: &Shape, ra: DQuat, tri: [DVec3; 3], margin: f64) -> Option<Contact> {
+    match a {
+        Shape::Sphere { radius } => sphere_triangle::contact(*radius, tri[0], tri[1], tri[2]),
+        Shape::Cuboid { half_extents } => cuboid_triangle::contact(*half_extents, ra, tri, margin),
+        _ => general::contact_triangle(a, ra, tri, margin),
+    }
 }
 
 /// Whether `a` at the origin and `b` at `d` overlap (strictly: touching is not overlapping).

@@ -1,9 +1,9 @@
 //! A convex shape against the height field: the triangles under the shape's bounds, each tested
-//! with the sphere/triangle kernel or GJK; the deepest wins. The field is solid below its
+//! with its kernel ([`super::triangle_contact`]); the deepest wins. The field is solid below its
 //! surface, so a sphere whose centre has sunk under the triangle beneath it still gets a
 //! contact pushing it back up.
 
-use super::{general, sphere_triangle, Contact};
+use super::Contact;
 use crate::sim::shape::Shape;
 use crate::terrain::heightfield::HeightField;
 use glam::{DQuat, DVec3};
@@ -23,10 +23,7 @@ pub fn terrain_contact(shape: &Shape, rot: DQuat, pos: DVec3, field: &HeightFiel
     };
     field.for_each_triangle_in(&bounds, |t| {
         let tri = [t[0] - pos, t[1] - pos, t[2] - pos];
-        consider(match shape {
-            Shape::Sphere { radius } => sphere_triangle::contact(*radius, tri[0], tri[1], tri[2]),
-            _ => general::contact_triangle(shape, rot, tri, margin),
-        });
+        consider(super::triangle_contact(shape, rot, tri, margin));
     });
     if let Shape::Sphere { radius } = shape {
         // Solid below: the signed distance to the plane of the triangle under the centre.
