@@ -9,11 +9,14 @@
 //! - [`grid`]: a uniform grid hashed into a fixed table, one cell per body; best for bodies of
 //!   similar size, whatever their density.
 //!
-//! Static geometry lives in [`StaticIndex`], parry's BVH, built once.
+//! Static geometry lives in [`StaticIndex`], parry's BVH, built once. Sleeping bodies, which do
+//! not move either, leave the method in use for a [`sorted::SortedBoxes`] index that is rebuilt
+//! only when the set of sleepers changes (the stepper keeps it).
 
 pub mod brute;
 pub mod grid;
 pub mod sap;
+pub mod sorted;
 
 use crate::sim::shape::Aabb;
 use rapier3d::parry;

@@ -17,6 +17,7 @@
 //! full re-simulation on random scenes and late inputs.
 
 use super::{Advance, Session};
+use crate::broadphase::sorted::SortedBoxes;
 use crate::rollback::history::Frame;
 use crate::sim::shape::Aabb;
 use crate::sim::{Stepper, TickInput, TickOutput, World};
@@ -48,28 +49,6 @@ fn entities(input: &TickInput, frame: &Frame, out: &mut BTreeSet<EntityId>) {
     }
 }
 
-/// Boxes sorted along x, for "does this box overlap any of them" in O(log n + nearby) instead
-/// of a scan of them all (the reach set can hold hundreds of bodies, tested against every body
-/// of every tick in the interval).
-struct BoxSet {
-    boxes: Vec<Aabb>,
-    widest: f64,
-}
-
-impl BoxSet {
-    fn new(mut boxes: Vec<Aabb>) -> BoxSet {
-        boxes.sort_by(|a, b| a.min.x.total_cmp(&b.min.x));
-        let widest = boxes.iter().map(|b| b.max.x - b.min.x).fold(0.0, f64::max);
-        BoxSet { boxes, widest }
-    }
-
-    fn hits(&self, p: &Aabb) -> bool {
-        // Only boxes starting within `widest` before p can reach it along x.
-        let first = self.boxes.partition_point(|b| b.min.x < p.min.x - self.widest);
-        self.boxes[first..].iter().take_while(|b| b.min.x <= p.max.x).any(|b| b.overlaps(p))
-    }
-}
-
 /// Grows `reach` with the old run's neighbours and inputs, to a fixpoint. Gives up (false) as
 /// soon as it holds more than `limit` bodies: the full re-simulation is then cheaper than
 /// growing on.
@@ -89,7 +68,7 @@ fn grow(s: &Session, from: Tick, now: Tick, reach: &mut BTreeSet<EntityId>, limi
             let boxes: Vec<Aabb> =
                 reach.iter().filter_map(|id| f.state.bodies.slot(*id)).map(|slot| f.paths[slot]).collect();
             let Some(hull) = boxes.iter().copied().reduce(|a, b| a.union(&b)) else { continue };
-            let set = BoxSet::new(boxes);
+            let set = SortedBoxes::new(boxes.into_iter().map(|b| (b, 0)));
             for (slot, p) in f.paths.iter().enumerate() {
                 if p.overlaps(&hull) && set.hits(p) {
                     reach.insert(f.state.bodies.id[slot]);
@@ -179,7 +158,7 @@ fn crossings(s: &Session, from: Tick, run: &SubRun, reach: &BTreeSet<EntityId>) 
         let f = s.history.get(Tick(from.0 + n as u32)).expect("held");
         debug_assert_eq!(ids.len(), boxes.len());
         let Some(hull) = boxes.iter().copied().reduce(|a, b| a.union(&b)) else { continue };
-        let set = BoxSet::new(boxes.clone());
+        let set = SortedBoxes::new(boxes.iter().map(|b| (*b, 0)));
         for (slot, p) in f.paths.iter().enumerate() {
             let id = f.state.bodies.id[slot];
             if !reach.contains(&id) && p.overlaps(&hull) && set.hits(p) {
@@ -274,27 +253,4 @@ pub fn resimulate(s: &mut Session, from: Tick, adv: &mut Advance) -> bool {
     }
     adv.skipped.extend(run.skipped);
     true
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use proptest::prelude::*;
-
-    fn aabb() -> impl Strategy<Value = Aabb> {
-        ((-20.0..20.0f64, -20.0..20.0f64, -20.0..20.0f64), (0.0..6.0f64, 0.0..3.0f64, 0.0..3.0f64))
-            .prop_map(|((x, y, z), (w, h, d))| Aabb { min: DVec3::new(x, y, z), max: DVec3::new(x + w, y + h, z + d) })
-    }
-
-    proptest! {
-        /// The sorted set answers exactly what a scan of every box answers.
-        #[test]
-        fn box_set_hits_equal_a_scan(set in proptest::collection::vec(aabb(), 0..60),
-                                     probes in proptest::collection::vec(aabb(), 1..60)) {
-            let sorted = BoxSet::new(set.clone());
-            for p in &probes {
-                prop_assert_eq!(sorted.hits(p), set.iter().any(|b| b.overlaps(p)));
-            }
-        }
-    }
 }

@@ -9,9 +9,10 @@ use crate::sim::world::World;
 /// terrain partners join no island (a floor does not make everything on it one island).
 fn dynamic_pairs(w: &World, out: &mut Vec<(u32, u32)>) {
     out.clear();
+    let (mut ca, mut cb) = (0, 0);
     let b = &w.bodies;
     for t in &w.touching {
-        if let (Some(i), Some(j)) = (b.slot(t.a), b.slot(t.b)) {
+        if let (Some(i), Some(j)) = (b.slot_from(&mut ca, t.a), b.slot_from(&mut cb, t.b)) {
             out.push((i as u32, j as u32));
         }
     }

@@ -18,7 +18,7 @@ impl Stepper {
             self.pairs.clear();
             return;
         }
-        self.broadphase.pairs(&self.aabbs, &mut self.pairs);
+        self.dynamic_pairs(w);
         self.wake_seeds.clear();
         let cfg = &w.config;
         let b = &w.bodies;
@@ -48,6 +48,77 @@ impl Stepper {
         }
         if !self.wake_seeds.is_empty() {
             self.islands.wake(w, &self.wake_seeds);
+        }
+    }
+
+    /// Every pair of dynamic bodies whose swept boxes overlap, sorted, into `pairs`.
+    ///
+    /// Sleeping bodies (that nothing set moving this tick) do not move, so they stay out of the
+    /// broadphase method: they sit in `sleepers`, an index sorted along x that is rebuilt only
+    /// when a body falls asleep or wakes, and each moving body looks itself up there. Pairs of
+    /// two sleepers, or of a sleeper and a body at rest, could not change anyway. The pairs are
+    /// the same, in the same order, as from one broadphase over every body.
+    fn dynamic_pairs(&mut self, w: &World) {
+        let b = &w.bodies;
+        let n = b.len();
+        let resting_sleeper = |i: usize| b.asleep[i] && !self.moving[i];
+        self.split = (0..n).any(resting_sleeper);
+        if !self.split {
+            self.broadphase.pairs(&self.aabbs, &mut self.pairs);
+            return;
+        }
+        self.bp_slots.clear();
+        self.bp_boxes.clear();
+        self.sleeper_scratch.clear();
+        for i in 0..n {
+            if resting_sleeper(i) {
+                self.sleeper_scratch.push((self.aabbs[i], i as u32));
+            } else {
+                self.bp_slots.push(i as u32);
+                self.bp_boxes.push(self.aabbs[i]);
+            }
+        }
+        // The index answers for exactly these boxes: rebuilt whenever they differ (a body fell
+        // asleep or woke, or a rollback restored other sleepers), so it never holds a result.
+        if self.sleeper_scratch != self.sleeper_boxes {
+            std::mem::swap(&mut self.sleeper_scratch, &mut self.sleeper_boxes);
+            self.sleepers.rebuild(self.sleeper_boxes.iter().copied());
+        }
+        self.broadphase.pairs(&self.bp_boxes, &mut self.pairs);
+        // Local indices to slots: `bp_slots` ascends, so the pairs stay `(lo, hi)` and sorted.
+        for p in &mut self.pairs {
+            *p = (self.bp_slots[p.0 as usize], self.bp_slots[p.1 as usize]);
+        }
+        let before = self.pairs.len();
+        let mut buf = std::mem::take(&mut self.query_buf);
+        for (k, &i) in self.bp_slots.iter().enumerate() {
+            if self.moving[i as usize] {
+                buf.clear();
+                self.sleepers.query(&self.bp_boxes[k], &mut buf);
+                self.pairs.extend(buf.iter().map(|&s| (i.min(s), i.max(s))));
+            }
+        }
+        self.query_buf = buf;
+        if self.pairs.len() > before {
+            self.pairs.sort_unstable();
+        }
+    }
+
+    /// Every dynamic body whose box, as given to the broadphase this tick, overlaps `q`, ascending
+    /// by slot (sleepers included).
+    pub(super) fn query_bodies(&self, q: &Aabb, out: &mut Vec<u32>) {
+        if !self.split {
+            self.broadphase.query(&self.aabbs, q, out);
+            return;
+        }
+        self.broadphase.query(&self.bp_boxes, q, out);
+        for x in out.iter_mut() {
+            *x = self.bp_slots[*x as usize];
+        }
+        let before = out.len();
+        self.sleepers.query(q, out);
+        if out.len() > before {
+            out.sort_unstable();
         }
     }
 
@@ -94,7 +165,7 @@ impl Stepper {
         // Other dynamic bodies: their full-step boxes still bound them unless they changed too,
         // in which case they were (or will be) re-queried themselves.
         let mut buf = std::mem::take(&mut self.query_buf);
-        self.broadphase.query(&self.aabbs, &swept, &mut buf);
+        self.query_bodies(&swept, &mut buf);
         for &j in &buf {
             if j == body || self.dead[j as usize] {
                 continue;

@@ -58,10 +58,15 @@ impl Stepper {
     /// Solves the cached contacts (see the module doc). Leaves each contact's normal and friction
     /// impulses in `self.contact_impulse`, by index in `w.touching`, for the contact cache of this tick.
     pub(super) fn solve_contacts(&mut self, w: &mut World) {
+        if self.awake == 0 {
+            return; // the tick ends before events: nothing here is read
+        }
         // Contacts not solved this tick (between sleepers, say) keep their impulse.
         self.contact_impulse.clear();
         self.contact_impulse.extend(w.touching.iter().map(|t| (t.impulse, t.friction_impulse)));
-        if !self.plan.gravity || w.touching.is_empty() || self.awake == 0 {
+        // The pairs' slots, for this stage and for events (no body comes or goes in between).
+        w.touching_slots(&mut self.touch_slots);
+        if !self.plan.gravity || w.touching.is_empty() {
             return;
         }
         let cfg = &w.config;
@@ -71,10 +76,10 @@ impl Stepper {
         let dt = cfg.dt;
         let b = &w.bodies;
         // A side that can move: an awake body with mass.
-        let movable = |slot: Option<usize>| slot.filter(|&s| !b.asleep[s] && b.inv_mass[s] > 0.0).map(|s| s as u32);
+        let movable = |slot: Option<u32>| slot.filter(|&s| !b.asleep[s as usize] && b.inv_mass[s as usize] > 0.0);
         self.rows.clear();
-        for (k, t) in w.touching.iter().enumerate() {
-            let (a, bb) = (movable(b.slot(t.a)), movable(b.slot(t.b)));
+        for (k, (t, [sa, sb])) in w.touching.iter().zip(&self.touch_slots).enumerate() {
+            let (a, bb) = (movable(*sa), movable(*sb));
             if a.is_none() && bb.is_none() {
                 continue;
             }

@@ -76,8 +76,8 @@ impl Stepper {
         self.records.sort_by(|x, y| key_of(x).cmp(&key_of(y)).then(x.t.total_cmp(&y.t)));
         self.records.dedup_by(|x, y| key_of(x) == key_of(y)); // keeps the earliest impact
                                                               // Resting pairs were not candidates: they keep touching while both ends stay put.
-        let still = |id: EntityId| match b.slot(id) {
-            Some(s) => !self.dead[s] && !self.moving[s],
+        let still = |slot: Option<u32>| match slot {
+            Some(s) => !self.dead[s as usize] && !self.moving[s as usize],
             None => true, // static or terrain
         };
         let prev = &w.touching;
@@ -91,7 +91,7 @@ impl Stepper {
             let tested = ke == Some(key);
             let impact = if kr == Some(key) { Some(self.records[ir]) } else { None };
             let end = if tested { Some(end_records[end_order[ie].1 as usize]) } else { None };
-            let now = tested || (was && impact.is_none() && still(key.0) && still(key.1));
+            let now = tested || (was && impact.is_none() && self.touch_slots[ip].iter().all(|s| still(*s)));
             if now {
                 // The contact cache: a tested pair's normal from this tick, a resting pair's
                 // from when it was last tested. Normals point from the lower id to the higher.

@@ -16,6 +16,7 @@ mod resolve;
 mod settle;
 mod sleep;
 
+use crate::broadphase::sorted::SortedBoxes;
 use crate::broadphase::Broadphase;
 use crate::narrow::{self, Contact, Kernel};
 use crate::sim::input::{self, TickInput};
@@ -223,6 +224,17 @@ pub struct Stepper {
     islands: crate::sim::island::Islands,
     rows: Vec<contacts::Row>,
     contact_impulse: Vec<(f64, DVec3)>,
+    /// Slots of `World::touching`'s pairs as the tick began (set by `contacts`).
+    touch_slots: Vec<[Option<u32>; 2]>,
+    /// Sleepers are kept out of the broadphase method this tick (see `dynamic_pairs`).
+    split: bool,
+    /// When split: the slots the broadphase method holds (ascending) and their boxes.
+    bp_slots: Vec<u32>,
+    bp_boxes: Vec<Aabb>,
+    /// The sleeping bodies' boxes `(box, slot)` that `sleepers` was built from, and the index.
+    sleeper_boxes: Vec<(Aabb, u32)>,
+    sleeper_scratch: Vec<(Aabb, u32)>,
+    sleepers: SortedBoxes,
 }
 
 impl Stepper {
@@ -261,6 +273,13 @@ impl Stepper {
             islands: Default::default(),
             rows: Vec::new(),
             contact_impulse: Vec::new(),
+            touch_slots: Vec::new(),
+            split: false,
+            bp_slots: Vec::new(),
+            bp_boxes: Vec::new(),
+            sleeper_boxes: Vec::new(),
+            sleeper_scratch: Vec::new(),
+            sleepers: SortedBoxes::default(),
         }
     }
 

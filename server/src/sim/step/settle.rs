@@ -95,7 +95,7 @@ impl Stepper {
                 let i = body as usize;
                 let here = w.bodies.shape[i].world_aabb(w.bodies.pos[i], w.bodies.rot[i]).inflated(slop);
                 let mut buf = std::mem::take(&mut self.query_buf);
-                self.broadphase.query(&self.aabbs, &here, &mut buf);
+                self.query_bodies(&here, &mut buf);
                 for &j in &buf {
                     if j != body && !self.dead[j as usize] {
                         self.add_candidate(body.min(j), Partner::Body(body.max(j)));
