@@ -261,6 +261,12 @@ impl Grid {
         }
     }
 
+    /// Files `aabbs` for [`Grid::query`] without looking for pairs: an index over boxes that
+    /// stay put (the sleeping bodies), built once and queried many times.
+    pub fn index(&mut self, aabbs: &[Aabb]) {
+        self.build(aabbs);
+    }
+
     /// Whether the last build succeeded for `n` boxes (then [`Grid::query`] answers from it).
     pub fn holds(&self, n: usize) -> bool {
         self.built && self.keys.len() == n && n > 0

@@ -10,8 +10,8 @@
 //!   similar size, whatever their density.
 //!
 //! Static geometry lives in [`StaticIndex`], parry's BVH, built once. Sleeping bodies, which do
-//! not move either, leave the method in use for a [`sorted::SortedBoxes`] index that is rebuilt
-//! only when the set of sleepers changes (the stepper keeps it).
+//! not move either, leave the method in use for a [`grid::Grid`] index that is rebuilt only when
+//! the set of sleepers changes (the stepper keeps it).
 
 pub mod brute;
 pub mod grid;

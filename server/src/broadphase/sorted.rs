@@ -1,7 +1,6 @@
 //! Boxes that do not move, sorted along x, for "which of them overlap this box" in
-//! O(log n + nearby). Serves the sleeping bodies (an index rebuilt only when the set of sleepers
-//! changes, so a yard of sleeping crates is not swept again every tick) and the selective
-//! re-simulation's reach set.
+//! O(log n + nearby): the selective re-simulation's reach set, tested against every body of
+//! every tick it re-simulates.
 
 use crate::sim::shape::Aabb;
 

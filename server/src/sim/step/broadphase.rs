@@ -54,8 +54,8 @@ impl Stepper {
     /// Every pair of dynamic bodies whose swept boxes overlap, sorted, into `pairs`.
     ///
     /// Sleeping bodies (that nothing set moving this tick) do not move, so they stay out of the
-    /// broadphase method: they sit in `sleepers`, an index sorted along x that is rebuilt only
-    /// when a body falls asleep or wakes, and each moving body looks itself up there. Pairs of
+    /// broadphase method: they sit in `sleepers`, a grid rebuilt only when a body falls asleep
+    /// or wakes, and each moving body looks itself up there. Pairs of
     /// two sleepers, or of a sleeper and a body at rest, could not change anyway. The pairs are
     /// the same, in the same order, as from one broadphase over every body.
     fn dynamic_pairs(&mut self, w: &World) {
@@ -82,7 +82,9 @@ impl Stepper {
         // asleep or woke, or a rollback restored other sleepers), so it never holds a result.
         if self.sleeper_scratch != self.sleeper_boxes {
             std::mem::swap(&mut self.sleeper_scratch, &mut self.sleeper_boxes);
-            self.sleepers.rebuild(self.sleeper_boxes.iter().copied());
+            self.sleeper_only.clear();
+            self.sleeper_only.extend(self.sleeper_boxes.iter().map(|(b, _)| *b));
+            self.sleepers.index(&self.sleeper_only);
         }
         self.broadphase.pairs(&self.bp_boxes, &mut self.pairs);
         // Local indices to slots: `bp_slots` ascends, so the pairs stay `(lo, hi)` and sorted.
@@ -94,7 +96,7 @@ impl Stepper {
         for (k, &i) in self.bp_slots.iter().enumerate() {
             if self.moving[i as usize] {
                 buf.clear();
-                self.sleepers.query(&self.bp_boxes[k], &mut buf);
+                self.query_sleepers(&self.bp_boxes[k], &mut buf);
                 self.pairs.extend(buf.iter().map(|&s| (i.min(s), i.max(s))));
             }
         }
@@ -116,9 +118,18 @@ impl Stepper {
             *x = self.bp_slots[*x as usize];
         }
         let before = out.len();
-        self.sleepers.query(q, out);
+        self.query_sleepers(q, out);
         if out.len() > before {
             out.sort_unstable();
+        }
+    }
+
+    /// Appends the slot of every sleeper in the index whose box overlaps `q`.
+    fn query_sleepers(&self, q: &Aabb, out: &mut Vec<u32>) {
+        let before = out.len();
+        self.sleepers.query(&self.sleeper_only, q, out);
+        for k in &mut out[before..] {
+            *k = self.sleeper_boxes[*k as usize].1;
         }
     }
 

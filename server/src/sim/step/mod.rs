@@ -16,7 +16,7 @@ mod resolve;
 mod settle;
 mod sleep;
 
-use crate::broadphase::sorted::SortedBoxes;
+use crate::broadphase::grid::Grid;
 use crate::broadphase::Broadphase;
 use crate::narrow::{self, Contact, Kernel};
 use crate::sim::input::{self, TickInput};
@@ -231,10 +231,12 @@ pub struct Stepper {
     /// When split: the slots the broadphase method holds (ascending) and their boxes.
     bp_slots: Vec<u32>,
     bp_boxes: Vec<Aabb>,
-    /// The sleeping bodies' boxes `(box, slot)` that `sleepers` was built from, and the index.
+    /// The sleeping bodies' boxes `(box, slot)` that `sleepers` was built from, the boxes alone,
+    /// and the index (a grid: sleepers barely overlap, and it is rebuilt only on change).
     sleeper_boxes: Vec<(Aabb, u32)>,
     sleeper_scratch: Vec<(Aabb, u32)>,
-    sleepers: SortedBoxes,
+    sleeper_only: Vec<Aabb>,
+    sleepers: Grid,
 }
 
 impl Stepper {
@@ -279,7 +281,8 @@ impl Stepper {
             bp_boxes: Vec::new(),
             sleeper_boxes: Vec::new(),
             sleeper_scratch: Vec::new(),
-            sleepers: SortedBoxes::default(),
+            sleeper_only: Vec::new(),
+            sleepers: Grid::default(),
         }
     }
 
