@@ -16,7 +16,7 @@ pub mod cuboid_triangle;
 pub mod general;
 pub mod mesh;
 #[cfg(test)]
-mod oracle;
+pub(crate) mod oracle;
 pub mod sphere_capsule;
 pub mod sphere_cuboid;
 pub mod sphere_sphere;
