@@ -40,6 +40,77 @@ pub enum Behaviour {
     Mixed,
 }
 
+/// How a client stamps its inputs (PROTOCOL.md, "Timing").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Timing {
+    /// Stamp the tick the client sees: every input arrives a round trip late and the server
+    /// rolls back for it (favours the mover: what it did happens where it saw it).
+    Behind,
+    /// Run ahead of the server by the lead its acks recommend, adjusted smoothly (the clock runs
+    /// up to [`DILATION`] fast or slow), so inputs arrive just before their tick: no rollback
+    /// but for the late few. Shots are rewound to the view tick the input carries.
+    Ahead,
+}
+
+/// The most an ahead client's clock runs fast or slow to reach a new recommended lead: 10 %,
+/// so a lead 13 ticks off is reached in about two seconds, with no jump in the ticks stamped.
+pub const DILATION: f64 = 0.1;
+
+/// Margins (ticks) counted per client, from `-MARGIN_SPAN` to `+MARGIN_SPAN` (outliers land in
+/// the end buckets).
+const MARGIN_SPAN: i32 = 64;
+
+/// A fixed histogram of arrival margins, ticks.
+#[derive(Clone, Debug)]
+pub struct Margins {
+    counts: [u32; (2 * MARGIN_SPAN + 1) as usize],
+    total: u64,
+}
+
+impl Default for Margins {
+    fn default() -> Self {
+        Margins { counts: [0; (2 * MARGIN_SPAN + 1) as usize], total: 0 }
+    }
+}
+
+impl Margins {
+    /// Counts one margin.
+    pub fn record(&mut self, margin: i32) {
+        self.counts[(margin.clamp(-MARGIN_SPAN, MARGIN_SPAN) + MARGIN_SPAN) as usize] += 1;
+        self.total += 1;
+    }
+
+    /// Adds another histogram's counts.
+    pub fn merge(&mut self, other: &Margins) {
+        for (a, b) in self.counts.iter_mut().zip(&other.counts) {
+            *a += b;
+        }
+        self.total += other.total;
+    }
+
+    /// The margin at quantile `q` (0 when nothing was counted).
+    pub fn quantile(&self, q: f64) -> i32 {
+        if self.total == 0 {
+            return 0;
+        }
+        let rank = ((q * self.total as f64).ceil() as u64).clamp(1, self.total);
+        let mut seen = 0;
+        for (k, c) in self.counts.iter().enumerate() {
+            seen += u64::from(*c);
+            if seen >= rank {
+                return k as i32 - MARGIN_SPAN;
+            }
+        }
+        MARGIN_SPAN
+    }
+
+    /// Inputs that arrived late (negative margin): each made the server roll back.
+    pub fn late(&self) -> u64 {
+        self.counts[..MARGIN_SPAN as usize].iter().map(|c| u64::from(*c)).sum()
+    }
+}
+
 /// Load test settings.
 #[derive(Clone, Debug)]
 pub struct LoadConfig {
@@ -63,6 +134,8 @@ pub struct LoadConfig {
     pub downlink: Link,
     /// What players do.
     pub behaviour: Behaviour,
+    /// How clients stamp their inputs.
+    pub timing: Timing,
     /// Inputs per second per client.
     pub input_hz: f64,
     /// Encoding of inputs.
@@ -89,6 +162,13 @@ struct Client {
     next_action: Instant,
     sent: BTreeMap<u32, Instant>,
     view: View,
+    /// Ahead mode: the lead in use (ticks; `None` until the first ack recommends one), the
+    /// lead recommended last, and when the lead was last moved.
+    lead: Option<f64>,
+    lead_target: f64,
+    lead_at: Option<Instant>,
+    margins: Margins,
+    corrections: u64,
 }
 
 /// How far (ticks) a client's clock may drift from the ticks of the batches it receives before
@@ -99,9 +179,57 @@ struct Client {
 pub const RESYNC_TICKS: u32 = 4;
 
 impl Client {
+    fn new(id: ClientId, behaviour: Behaviour, next_action: Instant) -> Client {
+        Client {
+            id,
+            behaviour,
+            avatar: None,
+            clock: None,
+            seq: 0,
+            next_action,
+            sent: BTreeMap::new(),
+            view: View::default(),
+            lead: None,
+            lead_target: 0.0,
+            lead_at: None,
+            margins: Margins::default(),
+            corrections: 0,
+        }
+    }
+
+    /// The client's view tick: the newest server tick it heard of plus what its clock counted.
     fn tick_estimate(&self, now: Instant) -> Option<Tick> {
         let (tick, at, hz) = self.clock?;
         Some(Tick(tick.0 + ((now - at).as_secs_f64() * f64::from(hz)) as u32))
+    }
+
+    /// An ack recommended `lead` ticks: the first sets the lead outright, later ones are reached
+    /// by time dilation in [`Client::stamp`].
+    fn recommend(&mut self, lead: u32) {
+        self.lead_target = f64::from(lead);
+        if self.lead.is_none() {
+            self.lead = Some(self.lead_target);
+        }
+    }
+
+    /// The tick to stamp an input with at `now`, and the view tick it was chosen from.
+    fn stamp(&mut self, timing: Timing, now: Instant) -> Option<(Tick, Tick)> {
+        let view = self.tick_estimate(now)?;
+        match (timing, self.lead) {
+            (Timing::Ahead, Some(lead)) => {
+                // Time dilation: the lead moves towards the target by at most DILATION of the
+                // ticks elapsed, so the stamped ticks never jump.
+                let hz = self.clock.map_or(64, |c| c.2);
+                let elapsed = self.lead_at.map_or(0.0, |at| (now - at).as_secs_f64() * f64::from(hz));
+                let step = DILATION * elapsed;
+                let lead = lead + (self.lead_target - lead).clamp(-step, step);
+                self.lead = Some(lead);
+                self.lead_at = Some(now);
+                Some((Tick(view.0 + lead.round().max(0.0) as u32), view))
+            }
+            // Behind, or ahead before the first recommendation: stamp what it sees.
+            _ => Some((view, view)),
+        }
     }
 
     /// A batch for `tick` arrived `now`: re-anchor the clock if it has drifted. Returns whether
@@ -116,9 +244,9 @@ impl Client {
     }
 }
 
-fn act(c: &mut Client, rng: &mut Rng, now: Instant) -> Option<ClientInput> {
+fn act(c: &mut Client, rng: &mut Rng, timing: Timing, now: Instant) -> Option<ClientInput> {
     let entity = c.avatar?;
-    let tick = c.tick_estimate(now)?;
+    let (tick, view) = c.stamp(timing, now)?;
     c.seq += 1;
     let dir = |rng: &mut Rng| {
         let a = std::f64::consts::TAU * rng.unit();
@@ -151,7 +279,9 @@ fn act(c: &mut Client, rng: &mut Rng, now: Instant) -> Option<ClientInput> {
             }
         }
     };
-    Some(ClientInput { client: c.id, seq: c.seq, tick, actions: vec![action] })
+    // Behind mode stamps the view tick itself; saying so again would change nothing.
+    let view_tick = (timing == Timing::Ahead).then_some(view);
+    Some(ClientInput { client: c.id, seq: c.seq, tick, view_tick, actions: vec![action] })
 }
 
 /// Runs the load and returns its report.
@@ -192,16 +322,7 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
             Behaviour::Mixed => [Behaviour::Wander, Behaviour::Chase, Behaviour::Shooter][k % 3],
             b => b,
         };
-        clients.push(Client {
-            id,
-            behaviour,
-            avatar: None,
-            clock: None,
-            seq: 0,
-            next_action: start,
-            sent: BTreeMap::new(),
-            view: View::default(),
-        });
+        clients.push(Client::new(id, behaviour, start));
     }
     let stats_sub = {
         let inbox = inbox.clone();
@@ -279,6 +400,8 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
                         }
                         ServerMessage::Ack(a) => {
                             r.clock_resyncs += u64::from(c.observe(a.server_tick, now));
+                            c.margins.record(a.margin_ticks);
+                            c.recommend(a.lead_ticks);
                             if let Some(sent) = c.sent.remove(&a.seq) {
                                 r.acks += 1;
                                 let _ = latency.record((now - sent).as_micros().max(1) as u64);
@@ -295,6 +418,7 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
                         }
                         ServerMessage::Corrections(cb) => {
                             r.corrections += 1;
+                            c.corrections += 1;
                             if let Some(t) = c.tick_estimate(now) {
                                 let _ = depth.record(u64::from(t.0.saturating_sub(cb.tick.0)).max(1));
                             }
@@ -315,7 +439,7 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
                     continue;
                 }
                 c.next_action += period;
-                if let Some(input) = act(c, &mut rng, now) {
+                if let Some(input) = act(c, &mut rng, cfg.timing, now) {
                     let seq = input.seq;
                     if let Ok(bytes) = impact_protocol::encode(&ClientMessage::Input(input), cfg.encoding) {
                         r.inputs_sent += 1;
@@ -369,6 +493,23 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
     r.corrections_per_s = r.corrections as f64 / cfg.duration.as_secs_f64().max(1e-9);
     r.correction_depth_p50 = depth.value_at_quantile(0.5) as f64;
     r.correction_depth_max = depth.max() as f64;
+    r.timing = Some(cfg.timing);
+    let mut all = Margins::default();
+    for c in &clients {
+        all.merge(&c.margins);
+        r.per_client.push(crate::report::ClientTiming {
+            client: c.id.0,
+            margin_ticks_p1: c.margins.quantile(0.01),
+            margin_ticks_p50: c.margins.quantile(0.5),
+            margin_ticks_p99: c.margins.quantile(0.99),
+            rollbacks_caused: c.margins.late(),
+            corrections: c.corrections,
+        });
+    }
+    r.margin_ticks_p1 = all.quantile(0.01);
+    r.margin_ticks_p50 = all.quantile(0.5);
+    r.margin_ticks_p99 = all.quantile(0.99);
+    r.rollbacks_caused = all.late();
     r.views_matched = clients.iter().map(|c| c.view.matched).sum();
     r.views_mismatched = clients.iter().map(|c| c.view.mismatched).sum();
     let bucket = 5_000u64;
@@ -391,15 +532,45 @@ mod tests {
 
     fn client(anchor: Tick, at: Instant) -> Client {
         Client {
-            id: ClientId(1),
-            behaviour: Behaviour::Wander,
             avatar: Some(EntityId(7)),
             clock: Some((anchor, at, 64)),
-            seq: 0,
-            next_action: at,
-            sent: BTreeMap::new(),
-            view: View::default(),
+            ..Client::new(ClientId(1), Behaviour::Wander, at)
         }
+    }
+
+    /// Ahead mode: the first recommendation is taken at once, a later one is approached at no
+    /// more than DILATION of the elapsed ticks, so the stamped ticks never jump; behind mode
+    /// stamps the view tick whatever the acks say.
+    #[test]
+    fn the_lead_follows_recommendations_by_time_dilation() {
+        let t0 = Instant::now();
+        let mut c = client(Tick(100), t0);
+        assert_eq!(c.stamp(Timing::Ahead, t0), Some((Tick(100), Tick(100))), "no lead before an ack");
+        c.recommend(12);
+        assert_eq!(c.stamp(Timing::Ahead, t0), Some((Tick(112), Tick(100))));
+        // The round trip shrinks: a lead of 2 is recommended. One second later (64 ticks) the
+        // lead has moved 6.4 ticks, not 10.
+        c.recommend(2);
+        let t1 = t0 + Duration::from_secs(1);
+        let (tick, view) = c.stamp(Timing::Ahead, t1).unwrap();
+        assert_eq!(view, Tick(164));
+        assert_eq!(tick, Tick(164 + 6), "12 - 6.4 rounds to 6");
+        // Another second reaches the target and stays there.
+        let t2 = t1 + Duration::from_secs(1);
+        assert_eq!(c.stamp(Timing::Ahead, t2), Some((Tick(230), Tick(228))));
+        assert_eq!(c.stamp(Timing::Behind, t2), Some((Tick(228), Tick(228))));
+    }
+
+    #[test]
+    fn margins_give_quantiles_and_count_the_late() {
+        let mut m = Margins::default();
+        for x in [-3, -1, 0, 1, 1, 2, 2, 2, 3, 100] {
+            m.record(x);
+        }
+        assert_eq!(m.late(), 2);
+        assert_eq!(m.quantile(0.01), -3);
+        assert_eq!(m.quantile(0.5), 1);
+        assert_eq!(m.quantile(0.99), MARGIN_SPAN, "outliers land in the end bucket");
     }
 
     /// A server that stalled and dropped its backlog is behind the client's clock: the first

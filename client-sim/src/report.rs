@@ -55,8 +55,38 @@ pub struct Report {
     /// Times a client's tick clock was re-anchored because the server's batches showed it more
     /// than [`crate::load::RESYNC_TICKS`] off (the server stalled, or dropped a backlog).
     pub clock_resyncs: u64,
+    /// How the clients stamped their inputs.
+    pub timing: Option<crate::load::Timing>,
+    /// Arrival margin over every acked input, ticks (`applied_tick - server_tick`: negative is
+    /// late): 1st percentile.
+    pub margin_ticks_p1: i32,
+    /// Median.
+    pub margin_ticks_p50: i32,
+    /// 99th percentile.
+    pub margin_ticks_p99: i32,
+    /// Acked inputs that arrived late, each a rollback on the server.
+    pub rollbacks_caused: u64,
+    /// The same per client.
+    pub per_client: Vec<ClientTiming>,
     /// Latency histogram: `(upper bound ms, count)` per 5 ms bucket.
     pub latency_histogram: Vec<(f64, u64)>,
+}
+
+/// One client's timing figures.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct ClientTiming {
+    /// The client id.
+    pub client: u32,
+    /// Arrival margin, ticks: 1st percentile.
+    pub margin_ticks_p1: i32,
+    /// Median.
+    pub margin_ticks_p50: i32,
+    /// 99th percentile.
+    pub margin_ticks_p99: i32,
+    /// Its inputs that arrived late.
+    pub rollbacks_caused: u64,
+    /// Correction batches it received.
+    pub corrections: u64,
 }
 
 impl std::fmt::Display for Report {
@@ -88,6 +118,28 @@ impl std::fmt::Display for Report {
             self.correction_depth_p50,
             self.correction_depth_max
         )?;
+        let timing = match self.timing {
+            Some(crate::load::Timing::Ahead) => "ahead",
+            Some(crate::load::Timing::Behind) => "behind",
+            None => "-",
+        };
+        writeln!(
+            f,
+            "  timing   {timing} | arrival margin p1 {} p50 {} p99 {} ticks | late (rollbacks caused) {}",
+            self.margin_ticks_p1, self.margin_ticks_p50, self.margin_ticks_p99, self.rollbacks_caused
+        )?;
+        if let Some(worst) = self.per_client.iter().max_by_key(|c| (c.rollbacks_caused, std::cmp::Reverse(c.client))) {
+            writeln!(
+                f,
+                "           per client (--report has each): most late: client {} with {}, margin p1 {} p50 {} p99 {}, {} corrections",
+                worst.client,
+                worst.rollbacks_caused,
+                worst.margin_ticks_p1,
+                worst.margin_ticks_p50,
+                worst.margin_ticks_p99,
+                worst.corrections
+            )?;
+        }
         writeln!(f, "  views    {} confirmed ticks matched, {} differed", self.views_matched, self.views_mismatched)?;
         write!(
             f,

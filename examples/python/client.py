@@ -3,8 +3,11 @@
 msgpack packages from PyPI.
 
 It joins a world (a liveliness token), waits for its welcome (its avatar and the server's tick),
-sends one input that sets its avatar's velocity, and prints the acknowledgement and the first
-event batches it sees. Exits 0 when it got the welcome, the ack and at least one event batch.
+then plays for a second in ahead mode (PROTOCOL.md, "Timing"): it keeps a clock of the server's
+tick (its view tick), stamps each input `view_tick + lead` with `view_tick` alongside, takes the
+lead the acks recommend (the first outright, later ones by time dilation), and prints each ack's
+arrival margin and the first event batches it sees. Exits 0 when it got the welcome, acks, at
+least one event batch, and an input sent after the first recommendation arrived on time.
 
     pip install eclipse-zenoh msgpack
     python3 examples/python/client.py --connect tcp/127.0.0.1:7447 --world arena
@@ -36,7 +39,9 @@ def main():
 
     prefix = f"impact/v1/{args.world}"
     me = args.client
-    state = {"welcome": None, "ack": None, "batches": 0, "events": 0}
+    state = {"welcome": None, "ack": None, "batches": 0, "events": 0, "lead": None, "target": 0.0,
+             "on_time_after_lead": 0}
+    sent_with_lead = set()  # seqs stamped with a recommended lead
     done = threading.Event()
 
     def decode(sample):
@@ -53,7 +58,13 @@ def main():
             print(f"welcome: avatar {msg['avatar']} at tick {msg['tick']} ({msg['tick_hz']} Hz)")
         elif msg["type"] == "ack":
             state["ack"] = msg
-            print(f"ack: input {msg['seq']} applied at tick {msg['applied_tick']} (server at {msg['server_tick']})")
+            print(f"ack: input {msg['seq']} for tick {msg['applied_tick']}, server at {msg['server_tick']}: "
+                  f"margin {msg['margin_ticks']} ticks, recommended lead {msg['lead_ticks']}")
+            state["target"] = float(msg["lead_ticks"])
+            if state["lead"] is None:
+                state["lead"] = state["target"]  # the first recommendation is taken outright
+            if msg["seq"] in sent_with_lead and msg["margin_ticks"] >= 0:
+                state["on_time_after_lead"] += 1
         elif msg["type"] == "reject":
             print(f"reject: {msg['reason']}: {msg['detail']}")
 
@@ -79,16 +90,35 @@ def main():
         print("no welcome with an avatar", file=sys.stderr)
         return 1
     w = state["welcome"]
-    # The tick we believe the server is at: its tick when it welcomed us, plus the time since.
-    tick = w["tick"] + 2
-    msg = {"type": "input", "client": me, "seq": 1, "tick": tick,
-           "actions": [{"type": "set_velocity", "entity": w["avatar"], "velocity": [2.0, 0.0, 1.0]}]}
-    session.put(f"{prefix}/input/{me}", msgpack.packb(msg), encoding=zenoh.Encoding("application/msgpack"))
+    welcomed_at = time.time()
+
+    def view_tick():
+        # The server's tick when it welcomed us, plus what our clock counted since.
+        return w["tick"] + int((time.time() - welcomed_at) * w["tick_hz"])
+
+    last = time.time()
+    for seq in range(1, 11):
+        now = time.time()
+        lead = 0.0
+        if state["lead"] is not None:
+            # Time dilation: move towards the recommendation by at most 10 % of the ticks elapsed.
+            step = 0.1 * (now - last) * w["tick_hz"]
+            state["lead"] += max(-step, min(step, state["target"] - state["lead"]))
+            lead = state["lead"]
+            sent_with_lead.add(seq)
+        last = now
+        view = view_tick()
+        msg = {"type": "input", "client": me, "seq": seq, "tick": view + round(lead), "view_tick": view,
+               "actions": [{"type": "set_velocity", "entity": w["avatar"], "velocity": [2.0, 0.0, 1.0]}]}
+        session.put(f"{prefix}/input/{me}", msgpack.packb(msg), encoding=zenoh.Encoding("application/msgpack"))
+        time.sleep(0.1)
 
     done.wait(max(0.0, deadline - time.time()))
-    ok = state["ack"] is not None and state["batches"] > 0
+    time.sleep(0.3)  # the last acks
+    ok = state["ack"] is not None and state["batches"] > 0 and state["on_time_after_lead"] > 0
     print(f"{'ok' if ok else 'FAILED'}: ack {'received' if state['ack'] else 'missing'}, "
-          f"{state['batches']} event batches ({state['events']} events)")
+          f"{state['batches']} event batches ({state['events']} events), "
+          f"{state['on_time_after_lead']} of {len(sent_with_lead)} inputs sent with a lead arrived on time")
     token.undeclare()
     ack_sub.undeclare()
     ev_sub.undeclare()

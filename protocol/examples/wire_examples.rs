@@ -10,10 +10,12 @@ fn hex(bytes: &[u8]) -> String {
 }
 
 fn main() {
+    // An ahead client: looking at tick 1188, it stamps 1188 + its lead of 12.
     let input = ClientMessage::Input(ClientInput {
         client: ClientId(7),
         seq: 42,
         tick: Tick(1200),
+        view_tick: Some(Tick(1188)),
         actions: vec![
             Action::SetVelocity { entity: EntityId(19), velocity: [1.5, 0.0, -2.0] },
             Action::FireRay {
@@ -50,7 +52,17 @@ fn main() {
         oldest_tick: Some(Tick(1184)),
         newest_tick: None,
     });
+    let ack = ServerMessage::Ack(InputAck {
+        client: ClientId(7),
+        seq: 42,
+        tick: Tick(1200),
+        applied_tick: Tick(1200),
+        server_tick: Tick(1198),
+        margin_ticks: 2,
+        lead_ticks: 12,
+    });
     print("client -> server: input", &input);
+    print("server -> client: ack", &ack);
     print("server -> client: events", &events);
     print("server -> client: reject", &reject);
 }

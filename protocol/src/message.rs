@@ -25,8 +25,15 @@ pub struct ClientInput {
     pub client: ClientId,
     /// Per-client sequence number; a repeated `seq` is a duplicate and is ignored.
     pub seq: u32,
-    /// The tick the actions apply at (usually a past tick: the server rolls back to it).
+    /// The tick the actions apply at: a past tick (the server rolls back to it), or, for a client
+    /// running ahead, the present or a future one (it waits for its tick: no rollback).
     pub tick: Tick,
+    /// The tick the client was showing when it acted (the newest server tick it had seen plus the
+    /// ticks its clock counted since). Optional: absent means `tick` (a client that stamps what it
+    /// sees). The server measures the client's delay from it to recommend a lead, and casts the
+    /// input's hitscan rays against the world as it was then (lag compensation).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub view_tick: Option<Tick>,
     /// What to do, in order; at most [`MAX_ACTIONS_PER_INPUT`](crate::limits::MAX_ACTIONS_PER_INPUT).
     pub actions: Vec<Action>,
 }
@@ -58,7 +65,9 @@ pub enum Action {
         /// Velocity, m/s.
         velocity: [f64; 3],
     },
-    /// Fire a hitscan ray, tested against the world as it was at the input's tick.
+    /// Fire a hitscan ray, tested against the world as it was at the input's `view_tick` (or its
+    /// tick), clamped to the scene's `max_rewind_ms` and the history window; what it hits happens
+    /// at the input's tick.
     FireRay {
         /// The owned entity that fires (it is never hit by its own ray).
         shooter: EntityId,
@@ -166,8 +175,18 @@ pub struct InputAck {
     pub tick: Tick,
     /// The tick it was applied at (differs from `tick` only under the clamp policy).
     pub applied_tick: Tick,
-    /// The server's current tick when it was accepted.
+    /// The server's current tick when it was accepted (the next tick it simulates).
     pub server_tick: Tick,
+    /// How many ticks before its tick the input arrived: `applied_tick - server_tick`. Zero or
+    /// more: on time, it waits for its tick and causes no rollback; negative: that many ticks
+    /// late, the server rolled back for it.
+    #[serde(default)]
+    pub margin_ticks: i32,
+    /// The lead the server recommends to this client: stamp inputs `view_tick + lead_ticks` so
+    /// they arrive just before their tick. From the client's recent delays (`server_tick -
+    /// view_tick` at arrival): the largest of the last 32, plus one.
+    #[serde(default)]
+    pub lead_ticks: u32,
 }
 
 /// Why an input was refused.
@@ -259,8 +278,16 @@ pub struct RayResult {
     pub client: ClientId,
     /// The input's `seq`.
     pub seq: u32,
-    /// The tick the ray was tested at (the shooter's tick: lag compensation).
+    /// The input's tick: where the hit's consequences (event, destroy) happen.
     pub tick: Tick,
+    /// The tick whose world the ray was tested against: the input's `view_tick` (or `tick`),
+    /// clamped (lag compensation).
+    #[serde(default)]
+    pub view_tick: Tick,
+    /// The requested view tick was further back than the server rewinds (`max_rewind_ms`, or
+    /// the history window), so the ray was tested at the oldest tick allowed instead.
+    #[serde(default)]
+    pub clamped: bool,
     /// The entity that fired.
     pub shooter: EntityId,
     /// The first thing hit, if any.
@@ -293,6 +320,12 @@ pub struct Welcome {
     pub tick_hz: u32,
     /// Ticks of history the server keeps (inputs older than `tick - window` are stale).
     pub window_ticks: u32,
+    /// How far ahead of the server an input may be stamped, ticks (further is `future`).
+    #[serde(default)]
+    pub input_lead_ticks: u32,
+    /// How far back a hitscan ray is rewound at most, ticks (the scene's `max_rewind_ms`).
+    #[serde(default)]
+    pub max_rewind_ticks: u32,
 }
 
 /// One body in a snapshot.

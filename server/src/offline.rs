@@ -3,7 +3,7 @@
 //! same input file give the same events and the same final state hash, bit for bit.
 
 use crate::scene::Scene;
-use crate::sim::{Plan, Stepper, TickInput, TickOutput};
+use crate::sim::{Plan, Stepper, TickInput, TickOutput, World};
 use impact_protocol::limits::MAX_CLIENT_MESSAGE_BYTES;
 use impact_protocol::{ClientMessage, CollisionEvent, Encoding, Phase, Response};
 use std::collections::BTreeMap;
@@ -51,11 +51,10 @@ pub fn read_inputs(path: &Path) -> Result<InputScript, OfflineError> {
         let msg: ClientMessage = impact_protocol::decode(trimmed.as_bytes(), Encoding::Json, MAX_CLIENT_MESSAGE_BYTES)
             .map_err(|e| OfflineError::Inputs { file: file.clone(), line: k + 1, detail: e.to_string() })?;
         let ClientMessage::Input(input) = msg;
-        script.entry(input.tick.0).or_default().push(TickInput {
-            client: input.client,
-            seq: input.seq,
-            actions: input.actions,
-        });
+        script
+            .entry(input.tick.0)
+            .or_default()
+            .push(TickInput { view_tick: input.view_tick, ..TickInput::new(input.client, input.seq, input.actions) });
     }
     Ok(script)
 }
@@ -107,9 +106,34 @@ pub fn run(
     let start_bodies = world.bodies.len();
     let empty = Vec::new();
     let mut skipped = 0;
+    // Rays rewound to a view tick need the worlds a network session's history would hold: kept
+    // only when some input asks for it.
+    let rewinds = inputs.values().flatten().any(|i| i.view_tick.is_some());
+    let window = world.config.window_ticks as usize;
+    let mut past: std::collections::VecDeque<World> = std::collections::VecDeque::new();
     let started = Instant::now();
     for k in 0..ticks {
-        let tick_inputs = inputs.get(&world.tick.0).unwrap_or(&empty);
+        let tick = world.tick;
+        let mut rewound;
+        let tick_inputs = match inputs.get(&tick.0) {
+            Some(list) if rewinds => {
+                rewound = list.clone();
+                let oldest = past.front().map_or(tick, |w| w.tick);
+                let max_rewind = world.config.max_rewind_ticks;
+                crate::rollback::rewind::rewind_rays(tick, &mut rewound, max_rewind, oldest, &world, |t| {
+                    past.get(t.0.checked_sub(oldest.0)? as usize)
+                });
+                &rewound
+            }
+            Some(list) => list,
+            None => &empty,
+        };
+        if rewinds && window > 0 {
+            if past.len() == window {
+                past.pop_front();
+            }
+            past.push_back(world.clone());
+        }
         stepper.step(&mut world, tick_inputs, &mut out);
         skipped += out.skipped.len();
         for e in &out.events {

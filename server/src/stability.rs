@@ -354,6 +354,7 @@ pub fn rollback_stress(ticks: u32) -> CaseResult {
     let mut on_time = Session::new(scene.world.clone(), Plan::for_world(&scene.world), cfg.clone());
     let mut late = Session::new(scene.world.clone(), Plan::for_world(&scene.world), cfg);
     let input = |t: u32| ClientInput {
+        view_tick: None,
         client: ClientId(1),
         seq: t,
         tick: Tick(t),

@@ -92,13 +92,15 @@ fn input_arrival_order_does_not_matter() {
                 return Vec::new();
             }
             let mut v: Vec<TickInput> = (1..=3u32)
-                .map(|c| TickInput {
-                    client: ClientId(c),
-                    seq: tick,
-                    actions: vec![Action::SetVelocity {
-                        entity: EntityId(6 + c),
-                        velocity: [f64::from(c) - 2.0, 0.0, f64::from(tick % 5) - 2.0],
-                    }],
+                .map(|c| {
+                    TickInput::new(
+                        ClientId(c),
+                        tick,
+                        vec![Action::SetVelocity {
+                            entity: EntityId(6 + c),
+                            velocity: [f64::from(c) - 2.0, 0.0, f64::from(tick % 5) - 2.0],
+                        }],
+                    )
                 })
                 .collect();
             if reverse {
@@ -120,11 +122,11 @@ fn a_changed_input_changes_the_hash() {
     let plan = Plan::for_world(&scene.world);
     let nudge = |tick: u32| {
         if tick == 10 {
-            vec![TickInput {
-                client: ClientId(1),
-                seq: 1,
-                actions: vec![Action::SetVelocity { entity: EntityId(6), velocity: [-4.0, 0.0, 0.0] }],
-            }]
+            vec![TickInput::new(
+                ClientId(1),
+                1,
+                vec![Action::SetVelocity { entity: EntityId(6), velocity: [-4.0, 0.0, 0.0] }],
+            )]
         } else {
             Vec::new()
         }

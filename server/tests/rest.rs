@@ -171,6 +171,7 @@ fn input(t: u32, ball: EntityId) -> Option<ClientInput> {
         _ => return None,
     };
     Some(ClientInput {
+        view_tick: None,
         client: ClientId(1),
         seq: t,
         tick: Tick(t),

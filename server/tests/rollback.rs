@@ -9,7 +9,7 @@ use impact_protocol::{
 };
 use impact_server::rollback::{RollbackConfig, Session, StalePolicy};
 use impact_server::scene::Scene;
-use impact_server::sim::Plan;
+use impact_server::sim::{Plan, TickInput};
 use std::collections::BTreeMap;
 
 fn session(name: &str, cfg: impl FnOnce(&mut RollbackConfig)) -> Session {
@@ -22,6 +22,7 @@ fn session(name: &str, cfg: impl FnOnce(&mut RollbackConfig)) -> Session {
 fn bat_input(seq: u32, tick: u32, vx: f64) -> ClientInput {
     // In breakout, entity 6 is the bat, owned by client 1.
     ClientInput {
+        view_tick: None,
         client: ClientId(1),
         seq,
         tick: Tick(tick),
@@ -84,7 +85,7 @@ fn window_edges_stale_clamp_future_duplicate() {
     assert_eq!(future.newest_tick, Some(Tick(48)));
     assert_eq!(s.submit(bat_input(4, 48, 1.0)), Ok(Tick(48)));
     assert_eq!(s.submit(bat_input(2, 30, 1.0)).unwrap_err().reason, RejectReason::Duplicate);
-    let not_owner = ClientInput { client: ClientId(9), ..bat_input(5, 35, 1.0) };
+    let not_owner = ClientInput { view_tick: None, client: ClientId(9), ..bat_input(5, 35, 1.0) };
     assert_eq!(s.submit(not_owner).unwrap_err().reason, RejectReason::NotOwner);
     let too_fast = bat_input(6, 35, 1000.0);
     assert_eq!(s.submit(too_fast).unwrap_err().reason, RejectReason::OutOfRange);
@@ -178,11 +179,9 @@ fn a_client_applying_events_then_corrections_ends_with_the_confirmed_stream() {
     assert!(corrections > 10, "the run must exercise corrections (got {corrections})");
 }
 
-#[test]
-fn hitscan_is_judged_at_the_shooters_tick() {
-    // A target crossing the line of fire: at tick 100 it is in front of the shooter, by tick 106
-    // it has moved on. A shot stamped 100 arriving at 106 must hit; the same shot stamped 106
-    // must miss.
+/// A shooter (entity 0, client 1) at the origin and a target (entity 1) crossing its line of
+/// fire (+x) at 8 m/s along z: its centre crosses z = 0 at tick 100, and it is destroyed when hit.
+fn range() -> Scene {
     let text = r#"
 [world]
 name = "range"
@@ -209,25 +208,38 @@ shape = { type = "sphere", radius_m = 0.5 }
 position = [20.0, 0.0, -12.5]
 velocity = [0.0, 0.0, 8.0]
 "#;
-    let scene = Scene::parse(text, "<range>").unwrap();
-    let shot = |tick: u32| ClientInput {
+    Scene::parse(text, "<range>").unwrap()
+}
+
+/// The shooter's ray along +x, for `tick`, looking at `view` (None: behind mode).
+fn shot(tick: u32, view: Option<u32>) -> ClientInput {
+    ClientInput {
         client: ClientId(1),
         seq: tick,
         tick: Tick(tick),
+        view_tick: view.map(Tick),
         actions: vec![Action::FireRay {
             shooter: EntityId(0),
             origin: [0.0, 0.0, 0.0],
             direction: [1.0, 0.0, 0.0],
             max_distance_m: 50.0,
         }],
-    };
+    }
+}
+
+#[test]
+fn hitscan_is_judged_at_the_shooters_tick() {
+    // A target crossing the line of fire: at tick 100 it is in front of the shooter, by tick 106
+    // it has moved on. A shot stamped 100 arriving at 106 must hit; the same shot stamped 106
+    // must miss.
+    let scene = range();
     let mut s =
         Session::new(scene.world.clone(), Plan::for_world(&scene.world), RollbackConfig::for_world(&scene.world));
     for _ in 0..106 {
         s.advance();
     }
     // The target's centre crosses z = 0 at t = 12.5 / 8 s = tick 100: at tick 106 it is 0.75 m past.
-    s.submit(shot(100)).unwrap();
+    s.submit(shot(100, None)).unwrap();
     let adv = s.advance();
     assert_eq!(adv.rollback_depth, 6);
     let ray = adv.rays.iter().find(|r| r.seq == 100).expect("the late shot is answered");
@@ -244,9 +256,91 @@ velocity = [0.0, 0.0, 8.0]
     for _ in 0..106 {
         s2.advance();
     }
-    s2.submit(shot(106)).unwrap();
+    s2.submit(shot(106, None)).unwrap();
     let adv = s2.advance();
     assert!(adv.rays[0].hit.is_none(), "the same shot at the present misses: {:?}", adv.rays[0]);
+}
+
+#[test]
+fn a_rewound_shot_hits_where_the_shooter_saw_the_target_without_rolling_back() {
+    // Ahead mode: the shot is for the present tick 106 (on time), but the shooter was looking at
+    // tick 100, when the target stood in the line of fire. It has moved 0.75 m on since.
+    let scene = range();
+    let mut s =
+        Session::new(scene.world.clone(), Plan::for_world(&scene.world), RollbackConfig::for_world(&scene.world));
+    for _ in 0..106 {
+        s.advance();
+    }
+    s.submit(shot(106, Some(100))).unwrap();
+    let adv = s.advance();
+    assert_eq!(adv.rollback_depth, 0, "a rewound shot re-simulates nothing");
+    let ray = &adv.rays[0];
+    assert_eq!((ray.tick, ray.view_tick, ray.clamped), (Tick(106), Tick(100), false));
+    let hit = ray.hit.as_ref().expect("hit where the shooter saw it");
+    assert_eq!(hit.entity, EntityId(1));
+    assert!(hit.point[2].abs() < 0.5, "the hit point is where the target was at tick 100: {:?}", hit.point);
+    // Its consequences happen now: the hit event at tick 106, and the target destroyed then.
+    let hits: Vec<_> = adv.events.iter().filter(|e| e.phase == Phase::Hit).collect();
+    assert_eq!(hits.len(), 1);
+    assert_eq!(hits[0].tick, Tick(106));
+    assert!(adv.corrections.is_empty());
+    assert!(s.world().bodies.slot(EntityId(1)).is_none(), "destroyed at the input's tick");
+    // The offline run of the same input rewinds the same way and ends in the same state.
+    let mut script = std::collections::BTreeMap::new();
+    script.insert(
+        106,
+        vec![TickInput { view_tick: Some(Tick(100)), ..TickInput::new(ClientId(1), 106, shot(106, None).actions) }],
+    );
+    let offline =
+        impact_server::offline::run(&scene, Plan::for_world(&scene.world), 107, &script, |_| Ok(()), |_| {}).unwrap();
+    assert_eq!(offline.state_hash, s.world().state_hash());
+}
+
+#[test]
+fn a_shot_from_beyond_the_rewind_limit_is_clamped_and_says_so() {
+    // max_rewind_ms defaults to the window (250 ms: 16 ticks). Looking at tick 80 from tick 106
+    // is 26 ticks back: the ray is tested at tick 90 instead, when the target was still 1.25 m
+    // short of the line of fire, and misses.
+    let scene = range();
+    assert_eq!(scene.world.config.max_rewind_ticks, 16);
+    let mut s =
+        Session::new(scene.world.clone(), Plan::for_world(&scene.world), RollbackConfig::for_world(&scene.world));
+    for _ in 0..106 {
+        s.advance();
+    }
+    s.submit(shot(106, Some(80))).unwrap();
+    let adv = s.advance();
+    let ray = &adv.rays[0];
+    assert_eq!((ray.view_tick, ray.clamped), (Tick(90), true));
+    assert!(ray.hit.is_none(), "{ray:?}");
+    assert!(s.world().bodies.slot(EntityId(1)).is_some());
+}
+
+#[test]
+fn ahead_inputs_on_time_never_roll_back_and_equal_the_offline_run() {
+    // Every input is submitted before its tick (as an ahead client's arrive), 3 ticks early.
+    let scene = Scene::load(&Scene::bundled_path("breakout")).unwrap();
+    let mut s =
+        Session::new(scene.world.clone(), Plan::for_world(&scene.world), RollbackConfig::for_world(&scene.world));
+    let mut script: BTreeMap<u32, Vec<TickInput>> = BTreeMap::new();
+    for k in 0..300u32 {
+        if k % 5 == 0 {
+            let input = ClientInput {
+                view_tick: Some(Tick(k.saturating_sub(9))),
+                ..bat_input(k + 1, k + 3, f64::from(k % 7) - 3.0)
+            };
+            script.entry(k + 3).or_default().push(TickInput {
+                view_tick: input.view_tick,
+                ..TickInput::new(input.client, input.seq, input.actions.clone())
+            });
+            assert_eq!(s.submit(input).unwrap(), Tick(k + 3));
+        }
+        s.advance();
+    }
+    assert_eq!(s.stats.rollbacks, 0, "on-time inputs need no rollback");
+    let offline =
+        impact_server::offline::run(&scene, Plan::for_world(&scene.world), 300, &script, |_| Ok(()), |_| {}).unwrap();
+    assert_eq!(offline.state_hash, s.world().state_hash(), "the session ends where the offline run does");
 }
 
 #[test]
@@ -258,6 +352,7 @@ fn memory_is_fixed_over_a_long_run() {
         if k % 7 == 0 && now > 20 {
             seq += 1;
             let input = ClientInput {
+                view_tick: None,
                 client: ClientId(1),
                 seq,
                 tick: Tick(now - 5),

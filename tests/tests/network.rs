@@ -37,6 +37,7 @@ fn an_input_is_acknowledged_and_moves_the_avatar() {
     let _token = join(&s, &world, me);
     let (avatar, tick) = welcome(&ack);
     let input = ClientInput {
+        view_tick: None,
         client: me,
         seq: 1,
         tick: Tick(tick.0 + 1),
@@ -115,6 +116,7 @@ velocity = [0.0, 0.0, 8.0]
     let target_time = at + Duration::from_secs_f64(f64::from(wait_ticks) / 64.0);
     std::thread::sleep(target_time.saturating_duration_since(Instant::now()));
     let shot = ClientInput {
+        view_tick: None,
         client: me,
         seq: 1,
         tick: Tick(100),
@@ -173,6 +175,7 @@ fn bad_inputs_are_rejected_with_reasons_and_others_are_still_served() {
     assert_eq!(reason(&bad_ack), Some(RejectReason::TooLarge));
     // NaN.
     let nan = ClientInput {
+        view_tick: None,
         client: bad,
         seq: 3,
         tick,
@@ -183,6 +186,7 @@ fn bad_inputs_are_rejected_with_reasons_and_others_are_still_served() {
     assert_eq!(reason(&bad_ack), Some(RejectReason::InvalidNumber));
     // Someone else's avatar.
     let foreign = ClientInput {
+        view_tick: None,
         client: bad,
         seq: 4,
         tick: Tick(tick.0 + 2),
@@ -191,12 +195,13 @@ fn bad_inputs_are_rejected_with_reasons_and_others_are_still_served() {
     send(&s, &world, &foreign, Encoding::MsgPack);
     assert_eq!(reason(&bad_ack), Some(RejectReason::NotOwner));
     // Claiming to be another client on one's own key.
-    let spoof = ClientInput { client: good, seq: 5, tick: Tick(tick.0 + 2), actions: vec![] };
+    let spoof = ClientInput { view_tick: None, client: good, seq: 5, tick: Tick(tick.0 + 2), actions: vec![] };
     let bytes = impact_protocol::encode(&impact_protocol::ClientMessage::Input(spoof), Encoding::MsgPack).unwrap();
     send_raw(&s, &world, bad, bytes, Encoding::MsgPack);
     assert_eq!(reason(&bad_ack), Some(RejectReason::NotOwner));
     // The other client is served throughout.
     let fine = ClientInput {
+        view_tick: None,
         client: good,
         seq: 1,
         tick: Tick(tick.0 + 3),

@@ -3,7 +3,7 @@
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use impact_client_sim::delay::Link;
-use impact_client_sim::load::{self, Behaviour, LoadConfig};
+use impact_client_sim::load::{self, Behaviour, LoadConfig, Timing};
 use impact_client_sim::report::latency_svg;
 use impact_protocol::{Encoding, WorldId};
 use std::path::PathBuf;
@@ -46,6 +46,11 @@ struct Args {
     /// What players do.
     #[arg(long, value_enum, default_value_t = Behaviour::Mixed)]
     behaviour: Behaviour,
+    /// How clients stamp inputs: `ahead` runs their clocks ahead of the server by the lead its
+    /// acks recommend (inputs arrive on time, no rollback); `behind` stamps the tick they see
+    /// (every input is late and rolled back). See PROTOCOL.md, "Timing".
+    #[arg(long, value_enum, default_value_t = Timing::Ahead)]
+    timing: Timing,
     /// Inputs per second per client.
     #[arg(long, default_value_t = 10.0)]
     input_hz: f64,
@@ -58,6 +63,10 @@ struct Args {
     /// Exit non-zero if the input-to-ack p99 exceeds this, ms.
     #[arg(long)]
     assert_p99_ms: Option<f64>,
+    /// Exit non-zero if any client's view of its events differs from the confirmed stream, or a
+    /// delivered input was never answered.
+    #[arg(long)]
+    assert_views: bool,
     /// Seed for behaviour and the network model.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -123,6 +132,7 @@ fn main() -> Result<()> {
         uplink: Link { latency: ms(a.latency_ms), jitter: ms(a.jitter_ms), loss: a.loss },
         downlink: Link { latency: ms(a.latency_ms), jitter: ms(a.jitter_ms), loss: 0.0 },
         behaviour: a.behaviour,
+        timing: a.timing,
         input_hz: a.input_hz,
         encoding: a.encoding,
         seed: a.seed,
@@ -131,9 +141,10 @@ fn main() -> Result<()> {
         progress: true,
     };
     eprintln!(
-        "impact-sim: {} clients ({:?}) over {} sessions -> {}, {} s, latency {} +- {} ms, loss {}",
+        "impact-sim: {} clients ({:?}, timing {:?}) over {} sessions -> {}, {} s, latency {} +- {} ms, loss {}",
         cfg.clients,
         cfg.behaviour,
+        cfg.timing,
         cfg.sessions,
         a.connect.join(","),
         cfg.duration.as_secs_f64(),
@@ -158,6 +169,14 @@ fn main() -> Result<()> {
             "warning: {} of {} clients were never welcomed (is the server running the same world?)",
             report.clients - report.clients_welcomed,
             report.clients
+        );
+    }
+    if a.assert_views && (report.views_mismatched > 0 || report.inputs_unanswered > 0 || report.views_matched == 0) {
+        bail!(
+            "{} views differed from the confirmed stream ({} matched), {} inputs unanswered",
+            report.views_mismatched,
+            report.views_matched,
+            report.inputs_unanswered
         );
     }
     if let Some(bound) = a.assert_p99_ms {

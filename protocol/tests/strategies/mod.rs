@@ -56,8 +56,13 @@ pub fn action() -> impl Strategy<Value = Action> {
 }
 
 pub fn client_message() -> impl Strategy<Value = ClientMessage> {
-    (client(), any::<u32>(), tick(), vec(action(), 0..=limits::MAX_ACTIONS_PER_INPUT))
-        .prop_map(|(client, seq, tick, actions)| ClientMessage::Input(ClientInput { client, seq, tick, actions }))
+    (client(), any::<u32>(), tick(), vec(action(), 0..=limits::MAX_ACTIONS_PER_INPUT)).prop_map(
+        |(client, seq, tick, actions)| {
+            // Every other input says what its client was looking at.
+            let view_tick = (seq % 2 == 0).then_some(Tick(tick.0 / 2));
+            ClientMessage::Input(ClientInput { client, seq, tick, view_tick, actions })
+        },
+    )
 }
 
 pub fn event() -> impl Strategy<Value = CollisionEvent> {
@@ -101,7 +106,15 @@ pub fn server_message() -> impl Strategy<Value = ServerMessage> {
             ServerMessage::Corrections(CorrectionBatch { tick, revision, retracted, amended, added })
         }),
         (client(), any::<u32>(), tick(), tick(), tick()).prop_map(|(client, seq, tick, applied_tick, server_tick)| {
-            ServerMessage::Ack(InputAck { client, seq, tick, applied_tick, server_tick })
+            ServerMessage::Ack(InputAck {
+                client,
+                seq,
+                tick,
+                applied_tick,
+                server_tick,
+                margin_ticks: applied_tick.0.wrapping_sub(server_tick.0) as i32,
+                lead_ticks: seq % 17,
+            })
         }),
         (client(), any::<u32>(), tick(), reason(), "[a-z ]{0,40}", option::of(tick()), option::of(tick())).prop_map(
             |(client, seq, tick, reason, detail, oldest_tick, newest_tick)| {
@@ -114,6 +127,8 @@ pub fn server_message() -> impl Strategy<Value = ServerMessage> {
                     client,
                     seq,
                     tick,
+                    view_tick: Tick(tick.0 / 2),
+                    clamped: seq % 3 == 0,
                     shooter,
                     hit: hit.map(|(entity, point, normal, distance_m)| RayHit { entity, point, normal, distance_m }),
                 })
@@ -121,7 +136,15 @@ pub fn server_message() -> impl Strategy<Value = ServerMessage> {
         ),
         (client(), option::of(entity()), tick(), 1..1000u32, 0..1000u32).prop_map(
             |(client, avatar, tick, tick_hz, window_ticks)| {
-                ServerMessage::Welcome(Welcome { client, avatar, tick, tick_hz, window_ticks })
+                ServerMessage::Welcome(Welcome {
+                    client,
+                    avatar,
+                    tick,
+                    tick_hz,
+                    window_ticks,
+                    input_lead_ticks: window_ticks / 2,
+                    max_rewind_ticks: window_ticks,
+                })
             }
         ),
         (tick(), any::<u64>(), vec((entity(), "[a-z]{1,10}", option::of(client()), vec3(), small3()), 0..5)).prop_map(

@@ -15,6 +15,7 @@
 
 pub mod history;
 pub mod reconcile;
+pub mod rewind;
 pub mod selective;
 
 use crate::sim::input::{self, Skipped};
@@ -303,7 +304,7 @@ impl Session {
         }
         input::check(&self.world, input.client, &input.actions)
             .map_err(|(reason, detail)| Refusal::new(reason, detail))?;
-        let entry = TickInput { client: input.client, seq: input.seq, actions: input.actions };
+        let entry = TickInput { view_tick: input.view_tick, ..TickInput::new(input.client, input.seq, input.actions) };
         let held = if tick < now {
             &mut self.history.get_mut(tick).expect("ticks in [oldest, now) are in the history").inputs
         } else {
@@ -349,7 +350,16 @@ impl Session {
 
         // The present tick.
         let tick = self.world.tick;
-        let inputs = self.future.remove(&tick.0).unwrap_or_default();
+        let mut inputs = self.future.remove(&tick.0).unwrap_or_default();
+        let history = &self.history;
+        rewind::rewind_rays(
+            tick,
+            &mut inputs,
+            self.world.config.max_rewind_ticks,
+            history.oldest().unwrap_or(tick),
+            &self.world,
+            |t| history.get(t).map(|f| &f.state),
+        );
         let system = std::mem::take(&mut self.system);
         let snap = std::time::Instant::now();
         let state = self.world.clone();
@@ -404,6 +414,13 @@ impl Session {
         let mut w = self.history.get(from).expect("rollback start is in the history").state.clone();
         for k in from.0..now.0 {
             let tick = Tick(k);
+            // Rays rewound to a view tick see that tick as this re-simulation left it.
+            let mut inputs = std::mem::take(&mut self.history.get_mut(tick).expect("held").inputs);
+            let history = &self.history;
+            let oldest = history.oldest().unwrap_or(tick);
+            let max_rewind = w.config.max_rewind_ticks;
+            rewind::rewind_rays(tick, &mut inputs, max_rewind, oldest, &w, |t| history.get(t).map(|f| &f.state));
+            self.history.get_mut(tick).expect("held").inputs = inputs;
             let frame = self.history.get(tick).expect("ticks in the window are held");
             let caps = self.stepper.stats.resolution_cap_hits;
             self.stepper.step_with(&mut w, &frame.system, &frame.inputs, &mut self.out);

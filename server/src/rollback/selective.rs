@@ -196,7 +196,8 @@ pub fn resimulate(s: &mut Session, from: Tick, adv: &mut Advance) -> bool {
             return false;
         }
         for input in &f.inputs {
-            if input.actions.iter().any(|a| matches!(a, Action::SpawnProjectile { .. })) {
+            // A rewound ray reads a past world the sub-world does not hold: the full path.
+            if !input.rewound.is_empty() || input.actions.iter().any(|a| matches!(a, Action::SpawnProjectile { .. })) {
                 return false;
             }
             if s.fresh.contains(&(input.client, input.seq)) {

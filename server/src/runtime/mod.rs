@@ -20,6 +20,7 @@
 mod egress;
 mod server;
 mod session;
+mod timing;
 
 pub use server::{start, RuntimeError, ServerHandle, ServerOptions, Summary};
 pub use session::zenoh_config;

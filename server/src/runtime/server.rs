@@ -1,6 +1,7 @@
 //! The server: Zenoh declarations, the tick thread, and shutdown.
 
 use super::egress::{self, Out};
+use super::timing::LeadEstimator;
 use crate::rollback::{RollbackConfig, Session};
 use crate::scene::{avatar_position, AvatarRule, Scene};
 use crate::sim::{Plan, SystemAction};
@@ -110,6 +111,10 @@ pub struct Summary {
     pub rollbacks: u64,
     /// Deepest rollback, ticks.
     pub rollback_depth_max: u32,
+    /// Median rollback depth, ticks (over the ticks that rolled back).
+    pub rollback_depth_p50: u32,
+    /// 99th percentile rollback depth, ticks.
+    pub rollback_depth_p99: u32,
     /// Clients seen.
     pub clients: u64,
     /// Seconds from the start of the first tick to the end of the last (shutdown excluded).
@@ -132,8 +137,14 @@ impl std::fmt::Display for Summary {
         writeln!(f, "inputs rejected: {}", if rejected.is_empty() { "none".into() } else { rejected.join(", ") })?;
         writeln!(
             f,
-            "events {}, correction batches {}, rollbacks {} (deepest {} ticks)",
-            self.events, self.corrections, self.rollbacks, self.rollback_depth_max
+            "events {}, correction batches {}, rollbacks {} ({:.1}/s; depth p50 {} p99 {} max {} ticks)",
+            self.events,
+            self.corrections,
+            self.rollbacks,
+            self.rollbacks as f64 / self.run_s.max(1e-9),
+            self.rollback_depth_p50,
+            self.rollback_depth_p99,
+            self.rollback_depth_max
         )?;
         write!(f, "egress messages dropped {}", self.egress_dropped)
     }
@@ -191,6 +202,8 @@ struct ClientState {
     leave_at: Option<u32>,
     tokens: f64,
     encoding: Encoding,
+    /// Its recent delays, for the lead recommended in its acks.
+    timing: LeadEstimator,
 }
 
 /// Counters shared with the callbacks.
@@ -371,6 +384,8 @@ struct TickLoop {
     period_rollbacks: u32,
     period_depth: u32,
     period_queue_max: u32,
+    /// Rollbacks by depth (index: ticks re-simulated; bounded by the window).
+    depths: Vec<u64>,
 }
 
 /// A fixed-bucket histogram of tick durations (0.01 ms buckets up to 100 ms), so a long run's
@@ -438,6 +453,7 @@ impl TickLoop {
             period_events: 0,
             period_rollbacks: 0,
             period_depth: 0,
+            depths: Vec::new(),
             period_queue_max: 0,
         }
     }
@@ -508,6 +524,20 @@ impl TickLoop {
         }
         self.summary.rollbacks = self.session.stats.rollbacks;
         self.summary.rollback_depth_max = self.session.stats.depth_max;
+        // Depth percentiles over the ticks that rolled back.
+        let total: u64 = self.depths.iter().sum();
+        let at = |q: f64| {
+            let rank = ((q * total as f64).ceil() as u64).max(1);
+            let mut seen = 0;
+            self.depths.iter().position(|c| {
+                seen += c;
+                seen >= rank
+            })
+        };
+        if total > 0 {
+            self.summary.rollback_depth_p50 = at(0.5).unwrap_or(0) as u32;
+            self.summary.rollback_depth_p99 = at(0.99).unwrap_or(0) as u32;
+        }
         self.summary.clone()
     }
 
@@ -563,6 +593,7 @@ impl TickLoop {
                 leave_at: Some(now.0 + self.opts.grace_ticks),
                 tokens: f64::from(self.opts.inputs_per_client_per_s),
                 encoding,
+                timing: LeadEstimator::default(),
             });
             state.encoding = encoding;
             if state.tokens < 1.0 {
@@ -578,11 +609,24 @@ impl TickLoop {
                 continue;
             }
             state.tokens -= 1.0;
+            let view = input.view_tick.unwrap_or(tick);
             match self.session.submit(input) {
                 Ok(applied) => {
                     self.summary.inputs_accepted += 1;
-                    let ack =
-                        ServerMessage::Ack(InputAck { client, seq, tick, applied_tick: applied, server_tick: now });
+                    // The most a client can lead by and still be accepted: its round trip (the
+                    // smallest lead that is on time) plus the ticks the server accepts ahead.
+                    let max_lead = now.0.saturating_sub(view.0).saturating_add(self.session.config().lead_ticks);
+                    let lead_ticks = state.timing.observe(now, view, max_lead);
+                    let margin_ticks = (i64::from(applied.0) - i64::from(now.0)).clamp(-1 << 30, 1 << 30) as i32;
+                    let ack = ServerMessage::Ack(InputAck {
+                        client,
+                        seq,
+                        tick,
+                        applied_tick: applied,
+                        server_tick: now,
+                        margin_ticks,
+                        lead_ticks,
+                    });
                     self.put(ack_key, &ack, encoding);
                 }
                 Err(r) => {
@@ -608,6 +652,11 @@ impl TickLoop {
         if adv.rollback_depth > 0 {
             self.period_rollbacks += 1;
             self.period_depth = self.period_depth.max(adv.rollback_depth);
+            let d = adv.rollback_depth as usize;
+            if self.depths.len() <= d {
+                self.depths.resize(d + 1, 0);
+            }
+            self.depths[d] += 1;
         }
         let enc = self.opts.encoding;
         if !adv.events.is_empty() {
@@ -679,6 +728,8 @@ impl TickLoop {
             tick: self.session.now(),
             tick_hz: cfg.tick_hz,
             window_ticks: cfg.window_ticks,
+            input_lead_ticks: self.session.config().lead_ticks,
+            max_rewind_ticks: cfg.max_rewind_ticks.min(self.session.config().window_ticks),
         });
         let e = self.clients.get(&client).map_or(self.opts.encoding, |c| c.encoding);
         self.put(self.client_key(keys::CLIENT_ACK, client), &msg, e);
@@ -705,6 +756,7 @@ impl TickLoop {
             leave_at: None,
             tokens: f64::from(self.opts.inputs_per_client_per_s),
             encoding: self.opts.encoding,
+            timing: LeadEstimator::default(),
         };
         let had = self.clients.insert(client, state).is_some();
         match (&self.avatar, had) {

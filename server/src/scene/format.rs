@@ -90,6 +90,11 @@ pub struct WorldDef {
     /// How far ahead of the server an input may be stamped, ticks (default 8).
     #[serde(default = "default_lead")]
     pub input_lead_ticks: u32,
+    /// How far back a hitscan ray is rewound at most, ms (default: the rollback window). Like
+    /// Source's `sv_maxunlag`: a shooter with a worse connection than this shoots at a world
+    /// younger than the one it saw.
+    #[serde(default)]
+    pub max_rewind_ms: Option<u32>,
     /// Most bodies (default 100,000).
     #[serde(default = "default_max_bodies")]
     pub max_bodies: u32,

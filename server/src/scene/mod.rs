@@ -452,6 +452,7 @@ impl Builder {
             max_bodies: w.max_bodies,
             window_ticks,
             input_lead_ticks: w.input_lead_ticks,
+            max_rewind_ticks: crate::sim::world::window_ticks(w.max_rewind_ms.unwrap_or(w.rollback_ms), w.tick_hz),
             projectile_class,
         };
         let world = World {

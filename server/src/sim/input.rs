@@ -11,7 +11,7 @@ use crate::sim::step::TickOutput;
 use crate::sim::world::{NewBody, Rule, World};
 use glam::{DQuat, DVec3};
 use impact_protocol::{
-    Action, ClientId, CollisionEvent, EntityId, EventStatus, Phase, RayResult, RejectReason, Response, ShapeSpec,
+    Action, ClientId, CollisionEvent, EntityId, EventStatus, Phase, RayResult, RejectReason, Response, ShapeSpec, Tick,
 };
 
 /// The inputs one client sent for one tick.
@@ -23,6 +23,33 @@ pub struct TickInput {
     pub seq: u32,
     /// The actions, in order.
     pub actions: Vec<Action>,
+    /// The tick the client was looking at (`None`: the input's own tick).
+    pub view_tick: Option<Tick>,
+    /// Its hitscan rays as cast against the world at their view tick, by action index. The core
+    /// keeps no history, so the rollback session fills this before the tick is simulated (and
+    /// again whenever it is re-simulated); a ray with no entry is cast against the tick's own
+    /// world.
+    pub rewound: Vec<RewoundRay>,
+}
+
+impl TickInput {
+    /// An input with no view tick of its own.
+    pub fn new(client: ClientId, seq: u32, actions: Vec<Action>) -> TickInput {
+        TickInput { client, seq, actions, view_tick: None, rewound: Vec::new() }
+    }
+}
+
+/// A hitscan ray cast against a past world (lag compensation).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RewoundRay {
+    /// Index of the `FireRay` action in the input.
+    pub action: u32,
+    /// The tick whose world (at its start) the ray was tested against.
+    pub view_tick: Tick,
+    /// The requested view tick was further back than allowed and was clamped.
+    pub clamped: bool,
+    /// What it hit there.
+    pub hit: Option<impact_protocol::RayHit>,
 }
 
 /// A change the server itself makes at a tick (not a client input): avatars appearing and
@@ -186,8 +213,8 @@ pub fn apply(w: &mut World, inputs: &[TickInput], out: &mut TickOutput) {
             out.skipped.push(Skipped { client: input.client, seq: input.seq, reason, detail });
             continue;
         }
-        for a in &input.actions {
-            apply_action(w, input, a, out, &mut removed);
+        for (index, a) in input.actions.iter().enumerate() {
+            apply_action(w, input, index, a, out, &mut removed);
         }
     }
     if !removed.is_empty() {
@@ -195,7 +222,14 @@ pub fn apply(w: &mut World, inputs: &[TickInput], out: &mut TickOutput) {
     }
 }
 
-fn apply_action(w: &mut World, input: &TickInput, a: &Action, out: &mut TickOutput, removed: &mut Vec<EntityId>) {
+fn apply_action(
+    w: &mut World,
+    input: &TickInput,
+    index: usize,
+    a: &Action,
+    out: &mut TickOutput,
+    removed: &mut Vec<EntityId>,
+) {
     let classes = &w.config.classes;
     match a {
         Action::SetVelocity { entity, velocity } => {
@@ -231,12 +265,19 @@ fn apply_action(w: &mut World, input: &TickInput, a: &Action, out: &mut TickOutp
             w.spawn(body);
         }
         Action::FireRay { shooter, origin, direction, max_distance_m } => {
-            let dir = DVec3::from_array(*direction).normalize();
-            let hit = ray::cast(w, DVec3::from_array(*origin), dir, *max_distance_m, Some(*shooter));
-            if let Some(h) = &hit {
-                let (Some(ca), Some(cb)) = (w.class_of(*shooter), w.class_of(h.entity)) else {
-                    return;
-                };
+            // Rewound (lag compensation): tested where the shooter saw the world, and what it
+            // hit happens now, at the input's tick.
+            let (hit, view_tick, clamped) = match input.rewound.iter().find(|r| r.action as usize == index) {
+                Some(r) => (r.hit.clone(), r.view_tick, r.clamped),
+                None => {
+                    let dir = DVec3::from_array(*direction).normalize();
+                    (ray::cast(w, DVec3::from_array(*origin), dir, *max_distance_m, Some(*shooter)), w.tick, false)
+                }
+            };
+            // A rewound hit on a body gone by now (destroyed since the view tick) is reported to
+            // the shooter but changes nothing: there is nothing left to hit.
+            let classes = hit.as_ref().and_then(|h| Some((w.class_of(*shooter)?, w.class_of(h.entity)?)));
+            if let (Some(h), Some((ca, cb))) = (&hit, classes) {
                 let rule = w.config.classes.rule(ca, cb);
                 let response = match rule {
                     Rule::Destroy { second: true, .. } if w.bodies.slot(h.entity).is_some() => {
@@ -261,7 +302,15 @@ fn apply_action(w: &mut World, input: &TickInput, a: &Action, out: &mut TickOutp
                     });
                 }
             }
-            out.rays.push(RayResult { client: input.client, seq: input.seq, tick: w.tick, shooter: *shooter, hit });
+            out.rays.push(RayResult {
+                client: input.client,
+                seq: input.seq,
+                tick: w.tick,
+                view_tick,
+                clamped,
+                shooter: *shooter,
+                hit,
+            });
         }
         Action::Despawn { entity } => removed.push(*entity),
     }

@@ -146,6 +146,8 @@ pub struct SimConfig {
     pub window_ticks: u32,
     /// How far ahead of the server an input's tick may be, ticks.
     pub input_lead_ticks: u32,
+    /// How far back a hitscan ray may be rewound, ticks (also bounded by the history window).
+    pub max_rewind_ticks: u32,
     /// The class of client-spawned projectiles (`None`: spawning is refused).
     pub projectile_class: Option<ClassId>,
 }

@@ -3,6 +3,7 @@
 //! the same scene, so ratios hold on a noisy shared machine where absolute times do not.
 
 mod accuracy;
+mod hitscan;
 mod kernels;
 mod plan;
 mod report;
@@ -40,6 +41,8 @@ enum Suite {
     /// Bodies at rest under gravity (standing, a pile, a yard): impact against rapier's full
     /// physics pipeline with sleeping.
     Rest(rest::RestArgs),
+    /// A lag-compensated shot rewound to the shooter's view tick, against the plain tick.
+    Hitscan(hitscan::HitscanArgs),
     /// Numerical stress cases (far from the origin, scale, degenerate, speed, pile, energy,
     /// rollback).
     Stability(stability::StabilityArgs),
@@ -57,5 +60,6 @@ fn main() -> Result<()> {
         Suite::Kernels(a) => kernels::run(&a),
         Suite::Stability(a) => stability::run(&a),
         Suite::Rest(a) => rest::run(&a),
+        Suite::Hitscan(a) => hitscan::run(&a),
     }
 }

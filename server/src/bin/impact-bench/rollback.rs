@@ -30,7 +30,7 @@ pub struct RollbackArgs {
     json: bool,
 }
 
-fn scene(n: u32) -> Result<Scene> {
+pub fn scene(n: u32) -> Result<Scene> {
     let base = super::scale::scene_text(n);
     let text = format!("{base}\n[[body]]\nclass = \"ball\"\nshape = {{ type = \"sphere\", radius_m = 0.5 }}\nposition = [-5.0, -5.0, -5.0]\nvelocity = [1.0, 0.0, 0.0]\nowner = 1\n");
     Ok(Scene::parse(&text, "<rollback>")?)
@@ -84,6 +84,7 @@ pub fn run(a: &RollbackArgs) -> Result<()> {
                     let now = s.now().0;
                     let v = if r % 2 == 0 { [2.0, 0.5, -1.0] } else { [-1.5, 0.0, 1.0] };
                     let input = ClientInput {
+                        view_tick: None,
                         client: ClientId(1),
                         seq,
                         tick: Tick(now - d),
