@@ -115,6 +115,11 @@ pub struct Summary {
     pub rollback_depth_p50: u32,
     /// 99th percentile rollback depth, ticks.
     pub rollback_depth_p99: u32,
+    /// Core steps run (ticks and their re-simulations) and the mean time of each stage per
+    /// step, ms, in tick order: what the core costs beside what the runtime around it does.
+    pub core_steps: u64,
+    /// `(stage, mean ms per step)`.
+    pub core_stage_ms: Vec<(&'static str, f64)>,
     /// Clients seen.
     pub clients: u64,
     /// Seconds from the start of the first tick to the end of the last (shutdown excluded).
@@ -146,6 +151,18 @@ impl std::fmt::Display for Summary {
             self.rollback_depth_p99,
             self.rollback_depth_max
         )?;
+        if self.core_steps > 0 {
+            let stages: Vec<String> = self.core_stage_ms.iter().map(|(n, ms)| format!("{n} {ms:.3}")).collect();
+            let total: f64 = self.core_stage_ms.iter().map(|(_, ms)| ms).sum();
+            writeln!(
+                f,
+                "core: {} steps for {} ticks, {:.3} ms per step ({})",
+                self.core_steps,
+                self.ticks,
+                total,
+                stages.join(", ")
+            )?;
+        }
         write!(f, "egress messages dropped {}", self.egress_dropped)
     }
 }
@@ -524,6 +541,10 @@ impl TickLoop {
         }
         self.summary.rollbacks = self.session.stats.rollbacks;
         self.summary.rollback_depth_max = self.session.stats.depth_max;
+        let core = &self.session.stepper().stats;
+        self.summary.core_steps = core.ticks;
+        let steps = core.ticks.max(1) as f64;
+        self.summary.core_stage_ms = core.stages().iter().map(|(n, d)| (*n, d.as_secs_f64() * 1e3 / steps)).collect();
         // Depth percentiles over the ticks that rolled back.
         let total: u64 = self.depths.iter().sum();
         let at = |q: f64| {
