@@ -211,6 +211,17 @@ velocity = [0.0, 0.0, 8.0]
     Scene::parse(text, "<range>").unwrap()
 }
 
+/// A session of the range, advanced to tick `now`.
+fn range_at(now: u32) -> (Scene, Session) {
+    let scene = range();
+    let mut s =
+        Session::new(scene.world.clone(), Plan::for_world(&scene.world), RollbackConfig::for_world(&scene.world));
+    for _ in 0..now {
+        s.advance();
+    }
+    (scene, s)
+}
+
 /// The shooter's ray along +x, for `tick`, looking at `view` (None: behind mode).
 fn shot(tick: u32, view: Option<u32>) -> ClientInput {
     ClientInput {
@@ -232,12 +243,7 @@ fn hitscan_is_judged_at_the_shooters_tick() {
     // A target crossing the line of fire: at tick 100 it is in front of the shooter, by tick 106
     // it has moved on. A shot stamped 100 arriving at 106 must hit; the same shot stamped 106
     // must miss.
-    let scene = range();
-    let mut s =
-        Session::new(scene.world.clone(), Plan::for_world(&scene.world), RollbackConfig::for_world(&scene.world));
-    for _ in 0..106 {
-        s.advance();
-    }
+    let (_, mut s) = range_at(106);
     // The target's centre crosses z = 0 at t = 12.5 / 8 s = tick 100: at tick 106 it is 0.75 m past.
     s.submit(shot(100, None)).unwrap();
     let adv = s.advance();
@@ -251,11 +257,7 @@ fn hitscan_is_judged_at_the_shooters_tick() {
     // The target was destroyed in the past, so it is gone now.
     assert!(s.world().bodies.slot(EntityId(1)).is_none());
 
-    let mut s2 =
-        Session::new(scene.world.clone(), Plan::for_world(&scene.world), RollbackConfig::for_world(&scene.world));
-    for _ in 0..106 {
-        s2.advance();
-    }
+    let (_, mut s2) = range_at(106);
     s2.submit(shot(106, None)).unwrap();
     let adv = s2.advance();
     assert!(adv.rays[0].hit.is_none(), "the same shot at the present misses: {:?}", adv.rays[0]);
@@ -265,12 +267,7 @@ fn hitscan_is_judged_at_the_shooters_tick() {
 fn a_rewound_shot_hits_where_the_shooter_saw_the_target_without_rolling_back() {
     // Ahead mode: the shot is for the present tick 106 (on time), but the shooter was looking at
     // tick 100, when the target stood in the line of fire. It has moved 0.75 m on since.
-    let scene = range();
-    let mut s =
-        Session::new(scene.world.clone(), Plan::for_world(&scene.world), RollbackConfig::for_world(&scene.world));
-    for _ in 0..106 {
-        s.advance();
-    }
+    let (scene, mut s) = range_at(106);
     s.submit(shot(106, Some(100))).unwrap();
     let adv = s.advance();
     assert_eq!(adv.rollback_depth, 0, "a rewound shot re-simulates nothing");

@@ -43,16 +43,7 @@ pub fn run(a: &HitscanArgs) -> Result<()> {
         cfg.window_ticks = cfg.window_ticks.max(a.rewind + 1);
         let mut s = Session::new(sc.world.clone(), Plan::for_world(&sc.world), cfg);
         progress(&format!("{n} bodies: warm-up"));
-        for _ in 0..(a.rewind + 30) {
-            s.advance();
-        }
-        let mut plain = Vec::new();
-        for _ in 0..40 {
-            let t = Instant::now();
-            s.advance();
-            plain.push(t.elapsed());
-        }
-        let tick_ms = median_ms(&mut plain);
+        let tick_ms = super::rollback::plain_tick_ms(&mut s, a.rewind + 30);
         progress(&format!("{n} bodies: {} shots", a.shots));
         let now = s.now();
         let view = Tick(now.0 - a.rewind);

@@ -36,6 +36,20 @@ pub fn scene(n: u32) -> Result<Scene> {
     Ok(Scene::parse(&text, "<rollback>")?)
 }
 
+/// Advances `s` by `warm_up` ticks, then times 40 plain ticks (no late input): their median, ms.
+pub fn plain_tick_ms(s: &mut Session, warm_up: u32) -> f64 {
+    for _ in 0..warm_up {
+        s.advance();
+    }
+    let mut plain = Vec::new();
+    for _ in 0..40 {
+        let t = Instant::now();
+        s.advance();
+        plain.push(t.elapsed());
+    }
+    median_ms(&mut plain)
+}
+
 /// Runs the suite.
 pub fn run(a: &RollbackArgs) -> Result<()> {
     println!(
@@ -64,16 +78,7 @@ pub fn run(a: &RollbackArgs) -> Result<()> {
             cfg.selective = selective;
             let mut s = Session::new(sc.world.clone(), Plan::for_world(&sc.world), cfg);
             progress(&format!("{n} bodies, {mode}: warm-up"));
-            for _ in 0..30 {
-                s.advance();
-            }
-            let mut plain = Vec::new();
-            for _ in 0..40 {
-                let t = Instant::now();
-                s.advance();
-                plain.push(t.elapsed());
-            }
-            let tick_ms = median_ms(&mut plain);
+            let tick_ms = plain_tick_ms(&mut s, 30);
             let snapshot_ms = s.stats.snapshot_time.as_secs_f64() * 1e3 / s.stats.ticks.max(1) as f64;
             let mut seq = 0;
             for &d in &a.depths {
