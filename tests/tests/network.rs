@@ -300,3 +300,53 @@ fn state_and_history_queries_answer() {
     }
     drop(server);
 }
+
+/// Both timing modes end to end (PROTOCOL.md, "Timing"): clients that run ahead by the lead
+/// their acks recommend get their inputs in before their tick (arrival margin >= 0, almost no
+/// late input), clients that stamp what they see are a round trip late every time and rolled
+/// back; in both, every delivered input is answered and every client's view equals the confirmed
+/// stream.
+#[test]
+fn ahead_clients_arrive_on_time_behind_clients_are_rolled_back_and_both_see_the_truth() {
+    use impact_client_sim::delay::Link;
+    use impact_client_sim::load::{self, Behaviour, LoadConfig, Timing};
+    for (timing, first) in [(Timing::Ahead, 100), (Timing::Behind, 200)] {
+        let (server, ep) = server(arena(), |_| {});
+        let link = Link { latency: Duration::from_millis(40), jitter: Duration::from_millis(5), loss: 0.0 };
+        let cfg = LoadConfig {
+            connect: vec![ep],
+            zenoh_config: None,
+            world: WorldId::new("arena").unwrap(),
+            clients: 20,
+            first_client: first,
+            sessions: 1,
+            duration: Duration::from_secs(4),
+            uplink: link,
+            downlink: link,
+            behaviour: Behaviour::Mixed,
+            timing,
+            input_hz: 10.0,
+            encoding: Encoding::MsgPack,
+            seed: 3,
+            settle: Duration::from_millis(1500),
+            progress: false,
+        };
+        let r = load::run(&cfg).expect("load runs");
+        assert_eq!(r.clients_welcomed, 20, "{timing:?}");
+        assert!(r.acks > 400, "{timing:?}: {} acks", r.acks);
+        assert_eq!(r.inputs_unanswered, 0, "{timing:?}");
+        assert!(r.views_matched > 0 && r.views_mismatched == 0, "{timing:?}: {r}");
+        match timing {
+            Timing::Ahead => {
+                assert!(r.margin_ticks_p50 >= 0, "{r}");
+                // Only each client's first input or two go out before a lead is known.
+                assert!(r.rollbacks_caused * 10 < r.acks, "{r}");
+            }
+            Timing::Behind => {
+                assert!(r.margin_ticks_p99 < 0, "{r}");
+                assert_eq!(r.rollbacks_caused, r.acks, "every behind input is late: {r}");
+            }
+        }
+        drop(server);
+    }
+}
