@@ -10,54 +10,101 @@ use impact_protocol::{EntityId, RayHit};
 use rapier3d::parry;
 use rapier3d::parry::query::RayCast;
 
+/// A ray `origin + s * dir` (`dir` unit, `0 <= s <= max_m`) that never hits `exclude` (the
+/// shooter).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ray {
+    /// Origin, world frame, m.
+    pub origin: DVec3,
+    /// Unit direction.
+    pub dir: DVec3,
+    /// Longest distance tested, m.
+    pub max_m: f64,
+    /// The entity the ray starts in, never hit.
+    pub exclude: Option<EntityId>,
+}
+
+/// The nearest hit so far of one ray: `(distance, entity, normal)`.
+type Best = Option<(f64, EntityId, DVec3)>;
+
 /// The first hit of the ray `origin + s * dir` (`dir` unit, `0 <= s <= max_m`), skipping
 /// `exclude` (the shooter).
 pub fn cast(w: &World, origin: DVec3, dir: DVec3, max_m: f64, exclude: Option<EntityId>) -> Option<RayHit> {
-    let end = origin + dir * max_m;
-    let ray_box = Aabb { min: origin.min(end), max: origin.max(end) };
-    let mut best: Option<(f64, EntityId, DVec3)> = None;
-    let consider = |best: &mut Option<(f64, EntityId, DVec3)>, hit: Option<(f64, DVec3)>, id: EntityId| {
-        if let Some((s, n)) = hit {
-            if s <= max_m && best.is_none_or(|(bs, bid, _)| s < bs || (s == bs && id < bid)) {
-                *best = Some((s, id, n));
-            }
-        }
-    };
-    // Dynamic bodies are culled by their bounding spheres (centre and radius are at hand; a box
-    // would need the orientation turned into a matrix per body per ray): a body the ray can hit
-    // first, at a distance up to the nearest hit so far (ties included), has its sphere within
-    // reach of the segment from the origin to that distance. One distance test per body, and a
-    // branch that is rarely taken, so the scan runs at memory speed. Culling only skips bodies
-    // the ray cannot hit first, so the answer is the scan's.
-    let b = &w.bodies;
-    let mut reach = max_m;
-    for i in 0..b.len() {
-        let to = b.pos[i] - origin;
-        let d = to - dir * to.dot(dir).clamp(0.0, reach);
-        // Conservative by a hair: rounding must never cull a grazing hit.
-        let r = b.radius[i] * (1.0 + 1e-9) + 1e-9;
-        if d.length_squared() > r * r || Some(b.id[i]) == exclude {
-            continue;
-        }
-        consider(&mut best, cast_shape(&b.shape[i], b.pos[i], b.rot[i], origin, dir, max_m), b.id[i]);
-        reach = best.map_or(max_m, |(bs, _, _)| bs);
-    }
-    let s = &w.statics;
-    for k in 0..s.id.len() {
-        if Some(s.id[k]) == exclude || !s.aabb[k].overlaps(&ray_box) {
-            continue;
-        }
-        consider(&mut best, cast_shape(&s.shape[k], s.pos[k], s.rot[k], origin, dir, max_m), s.id[k]);
-    }
-    if let Some(t) = &s.terrain {
-        consider(&mut best, cast_heightfield(&t.field, origin, dir, max_m), t.id);
-    }
+    let ray = Ray { origin, dir, max_m, exclude };
+    let mut best = [None];
+    first_hits(w, std::slice::from_ref(&ray), &mut best);
+    hit_of(&ray, best[0])
+}
+
+/// The first hit of each of `rays` against `w`, exactly as [`cast`] answers each, in one pass
+/// over the bodies: each body is loaded once for all the rays instead of once per ray (a tick's
+/// rewound shots against one past world). `out` is cleared first.
+pub fn cast_many(w: &World, rays: &[Ray], out: &mut Vec<Option<RayHit>>) {
+    let mut best = vec![None; rays.len()];
+    first_hits(w, rays, &mut best);
+    out.clear();
+    out.extend(rays.iter().zip(best).map(|(r, b)| hit_of(r, b)));
+}
+
+fn hit_of(ray: &Ray, best: Best) -> Option<RayHit> {
     best.map(|(s, entity, normal)| RayHit {
         entity,
-        point: (origin + dir * s).to_array(),
+        point: (ray.origin + ray.dir * s).to_array(),
         normal: normal.to_array(),
         distance_m: s,
     })
+}
+
+/// Keeps the nearer of `best` and `hit` (ties: the lower id), so the answer does not depend on
+/// the order bodies are visited in.
+fn consider(best: &mut Best, hit: Option<(f64, DVec3)>, id: EntityId, max_m: f64) {
+    if let Some((s, n)) = hit {
+        if s <= max_m && best.is_none_or(|(bs, bid, _)| s < bs || (s == bs && id < bid)) {
+            *best = Some((s, id, n));
+        }
+    }
+}
+
+/// The nearest hit of each ray, into `best` (one per ray, `None` to start).
+fn first_hits(w: &World, rays: &[Ray], best: &mut [Best]) {
+    // Dynamic bodies are culled by their bounding spheres (centre and radius are at hand; a box
+    // would need the orientation turned into a matrix per body per ray): a body a ray can hit
+    // first, at a distance up to its nearest hit so far (ties included), has its sphere within
+    // reach of the segment from the origin to that distance. One distance test per body and ray,
+    // and a branch that is rarely taken. Culling only skips bodies a ray cannot hit first, so the
+    // answer is the scan's.
+    let b = &w.bodies;
+    let mut reach: Vec<f64> = rays.iter().map(|r| r.max_m).collect();
+    for i in 0..b.len() {
+        let p = b.pos[i];
+        // Conservative by a hair: rounding must never cull a grazing hit.
+        let r = b.radius[i] * (1.0 + 1e-9) + 1e-9;
+        for (k, ray) in rays.iter().enumerate() {
+            let to = p - ray.origin;
+            let d = to - ray.dir * to.dot(ray.dir).clamp(0.0, reach[k]);
+            if d.length_squared() > r * r || Some(b.id[i]) == ray.exclude {
+                continue;
+            }
+            let hit = cast_shape(&b.shape[i], p, b.rot[i], ray.origin, ray.dir, ray.max_m);
+            consider(&mut best[k], hit, b.id[i], ray.max_m);
+            reach[k] = best[k].map_or(ray.max_m, |(bs, _, _)| bs);
+        }
+    }
+    let s = &w.statics;
+    for (ray, best) in rays.iter().zip(best.iter_mut()) {
+        let end = ray.origin + ray.dir * ray.max_m;
+        let ray_box = Aabb { min: ray.origin.min(end), max: ray.origin.max(end) };
+        for k in 0..s.id.len() {
+            if Some(s.id[k]) == ray.exclude || !s.aabb[k].overlaps(&ray_box) {
+                continue;
+            }
+            let hit = cast_shape(&s.shape[k], s.pos[k], s.rot[k], ray.origin, ray.dir, ray.max_m);
+            consider(best, hit, s.id[k], ray.max_m);
+        }
+        if let Some(t) = &s.terrain {
+            consider(best, cast_heightfield(&t.field, ray.origin, ray.dir, ray.max_m), t.id, ray.max_m);
+        }
+    }
 }
 
 /// Distance and unit normal (facing the ray) of the first hit on one shape.
@@ -274,7 +321,17 @@ mod tests {
                 .filter_map(|i| cast_shape(&b.shape[i], b.pos[i], b.rot[i], origin, dir, max_m).map(|(s, _)| (s, b.id[i])))
                 .filter(|(s, _)| *s <= max_m)
                 .min_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
-            proptest::prop_assert_eq!(fast.map(|h| (h.distance_m, h.entity)), scan);
+            proptest::prop_assert_eq!(fast.clone().map(|h| (h.distance_m, h.entity)), scan);
+            // The batch answers each ray as the single cast does (a second ray from the far side
+            // shares the pass).
+            let rays = [
+                Ray { origin, dir, max_m, exclude },
+                Ray { origin: -origin, dir: -dir, max_m, exclude: None },
+            ];
+            let mut many = Vec::new();
+            cast_many(&w, &rays, &mut many);
+            proptest::prop_assert_eq!(&many[0], &fast);
+            proptest::prop_assert_eq!(&many[1], &cast(&w, -origin, -dir, max_m, None));
         }
     }
 

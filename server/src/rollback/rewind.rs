@@ -8,7 +8,7 @@
 //! input's tick is simulated (and again each time that tick is re-simulated, so a rollback that
 //! changed the past world changes the hit too) and hands the hits to the core inside the input.
 
-use crate::query::ray;
+use crate::query::ray::{self, Ray};
 use crate::sim::input::{RewoundRay, TickInput};
 use crate::sim::World;
 use glam::DVec3;
@@ -18,6 +18,9 @@ use impact_protocol::{Action, Tick};
 /// tested against the world at the start of the view tick. A view tick further back than
 /// `max_rewind_ticks` before `tick`, or than `oldest` (the oldest world `past` holds), is
 /// clamped to the nearest allowed one and marked. `present` is the world at the start of `tick`.
+///
+/// The rays that look at the same tick are cast together, in one pass over that world's bodies
+/// ([`ray::cast_many`]): a tick's shots from a thousand clients mostly share a few view ticks.
 pub fn rewind_rays<'a>(
     tick: Tick,
     inputs: &mut [TickInput],
@@ -26,22 +29,42 @@ pub fn rewind_rays<'a>(
     present: &'a World,
     past: impl Fn(Tick) -> Option<&'a World>,
 ) {
-    for input in inputs {
+    // (view tick, clamped, input, action, ray), grouped by view tick below.
+    let mut shots: Vec<(Tick, bool, usize, u32, Ray)> = Vec::new();
+    for (n, input) in inputs.iter_mut().enumerate() {
         input.rewound.clear();
         let Some(requested) = input.view_tick else { continue };
-        if requested >= tick || !input.actions.iter().any(|a| matches!(a, Action::FireRay { .. })) {
+        if requested >= tick {
             continue;
         }
         let floor = Tick(tick.0.saturating_sub(max_rewind_ticks).max(oldest.0).min(tick.0));
         let (view, clamped) = if requested < floor { (floor, true) } else { (requested, false) };
-        let world = if view == tick { Some(present) } else { past(view) };
-        let Some(world) = world else { continue };
         for (k, a) in input.actions.iter().enumerate() {
             if let Action::FireRay { shooter, origin, direction, max_distance_m } = a {
-                let dir = DVec3::from_array(*direction).normalize();
-                let hit = ray::cast(world, DVec3::from_array(*origin), dir, *max_distance_m, Some(*shooter));
-                input.rewound.push(RewoundRay { action: k as u32, view_tick: view, clamped, hit });
+                let ray = Ray {
+                    origin: DVec3::from_array(*origin),
+                    dir: DVec3::from_array(*direction).normalize(),
+                    max_m: *max_distance_m,
+                    exclude: Some(*shooter),
+                };
+                shots.push((view, clamped, n, k as u32, ray));
             }
+        }
+    }
+    if shots.is_empty() {
+        return;
+    }
+    shots.sort_by_key(|s| (s.0, s.2, s.3));
+    let mut rays = Vec::new();
+    let mut hits = Vec::new();
+    for group in shots.chunk_by(|a, b| a.0 == b.0) {
+        let view = group[0].0;
+        let Some(world) = (if view == tick { Some(present) } else { past(view) }) else { continue };
+        rays.clear();
+        rays.extend(group.iter().map(|s| s.4));
+        ray::cast_many(world, &rays, &mut hits);
+        for (s, hit) in group.iter().zip(hits.drain(..)) {
+            inputs[s.2].rewound.push(RewoundRay { action: s.3, view_tick: view, clamped: s.1, hit });
         }
     }
 }
