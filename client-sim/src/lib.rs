@@ -5,10 +5,12 @@
 //!   the check that it ends equal to the confirmed stream.
 //! - [`delay`]: a delay line that models network latency, jitter and loss.
 //! - [`load`]: the load generator behind `impact-sim`.
+//! - [`timing`]: how a client times its inputs (behind or ahead) and the margins it is told.
 //! - [`report`]: its report (human summary, JSON, SVG histogram).
 
 pub mod delay;
 pub mod load;
 pub mod net;
 pub mod report;
+pub mod timing;
 pub mod view;

@@ -56,7 +56,7 @@ pub struct Report {
     /// than [`crate::load::RESYNC_TICKS`] off (the server stalled, or dropped a backlog).
     pub clock_resyncs: u64,
     /// How the clients stamped their inputs.
-    pub timing: Option<crate::load::Timing>,
+    pub timing: Option<crate::timing::Timing>,
     /// Arrival margin over every acked input, ticks (`applied_tick - server_tick`: negative is
     /// late): 1st percentile.
     pub margin_ticks_p1: i32,
@@ -119,8 +119,8 @@ impl std::fmt::Display for Report {
             self.correction_depth_max
         )?;
         let timing = match self.timing {
-            Some(crate::load::Timing::Ahead) => "ahead",
-            Some(crate::load::Timing::Behind) => "behind",
+            Some(crate::timing::Timing::Ahead) => "ahead",
+            Some(crate::timing::Timing::Behind) => "behind",
             None => "-",
         };
         writeln!(

@@ -309,7 +309,8 @@ fn state_and_history_queries_answer() {
 #[test]
 fn ahead_clients_arrive_on_time_behind_clients_are_rolled_back_and_both_see_the_truth() {
     use impact_client_sim::delay::Link;
-    use impact_client_sim::load::{self, Behaviour, LoadConfig, Timing};
+    use impact_client_sim::load::{self, Behaviour, LoadConfig};
+    use impact_client_sim::timing::Timing;
     for (timing, first) in [(Timing::Ahead, 100), (Timing::Behind, 200)] {
         let (server, ep) = server(arena(), |_| {});
         let link = Link { latency: Duration::from_millis(40), jitter: Duration::from_millis(5), loss: 0.0 };

@@ -3,8 +3,9 @@
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use impact_client_sim::delay::Link;
-use impact_client_sim::load::{self, Behaviour, LoadConfig, Timing};
+use impact_client_sim::load::{self, Behaviour, LoadConfig};
 use impact_client_sim::report::latency_svg;
+use impact_client_sim::timing::Timing;
 use impact_protocol::{Encoding, WorldId};
 use std::path::PathBuf;
 use std::time::Duration;
