@@ -293,6 +293,9 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
     let load_end = load_start + cfg.duration;
     let stop = load_end + cfg.settle;
     let mut last_progress = Instant::now();
+    // Stats arrive once a second: a day's worth is plenty of bound.
+    const STATS_SECONDS_MAX: usize = 86_400;
+    let mut second_p50s: Vec<f64> = Vec::new();
     let tty = std::io::stderr().is_terminal();
     let input_keys: Vec<String> = clients.iter().map(|c| keys::INPUT.key(&cfg.world, Some(c.id))).collect();
     loop {
@@ -310,6 +313,14 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
                 Inbound::Stats(s) => {
                     r.server_tick_ms_p99 = s.tick_ms_p99;
                     r.server_overruns = s.overruns;
+                    if now < load_end && second_p50s.len() < STATS_SECONDS_MAX {
+                        // The server's seconds under load: their median p50, their worst p99,
+                        // and the rollbacks they counted.
+                        second_p50s.push(s.tick_ms_p50);
+                        r.server_tick_ms_p99_worst_second = r.server_tick_ms_p99_worst_second.max(s.tick_ms_p99);
+                        r.server_rollbacks += u64::from(s.rollbacks);
+                        r.server_rollback_depth_max = r.server_rollback_depth_max.max(s.rollback_depth_max);
+                    }
                     // Once a second every client hears the server's tick, even one that no
                     // event concerns.
                     for c in clients.iter_mut() {
@@ -423,6 +434,10 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
     r.corrections_per_s = r.corrections as f64 / cfg.duration.as_secs_f64().max(1e-9);
     r.correction_depth_p50 = depth.value_at_quantile(0.5) as f64;
     r.correction_depth_max = depth.max() as f64;
+    r.correction_depth_p99 = depth.value_at_quantile(0.99) as f64;
+    second_p50s.sort_by(f64::total_cmp);
+    r.server_tick_ms_p50_median_second = second_p50s.get(second_p50s.len() / 2).copied().unwrap_or(0.0);
+    r.server_rollbacks_per_s = r.server_rollbacks as f64 / cfg.duration.as_secs_f64().max(1e-9);
     r.timing = Some(cfg.timing);
     let mut all = Margins::default();
     for c in &clients {
@@ -440,6 +455,7 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
     r.margin_ticks_p50 = all.quantile(0.5);
     r.margin_ticks_p99 = all.quantile(0.99);
     r.rollbacks_caused = all.late();
+    r.rollbacks_caused_per_s = r.rollbacks_caused as f64 / cfg.duration.as_secs_f64().max(1e-9);
     r.views_matched = clients.iter().map(|c| c.view.matched).sum();
     r.views_mismatched = clients.iter().map(|c| c.view.mismatched).sum();
     let bucket = 5_000u64;

@@ -44,6 +44,8 @@ pub struct Report {
     pub correction_depth_p50: f64,
     /// Deepest correction, ticks.
     pub correction_depth_max: f64,
+    /// 99th percentile, ticks.
+    pub correction_depth_p99: f64,
     /// Confirmed ticks whose client view equalled the confirmed stream.
     pub views_matched: u64,
     /// Confirmed ticks whose view did not.
@@ -52,6 +54,16 @@ pub struct Report {
     pub server_tick_ms_p99: f64,
     /// The server's last reported overruns.
     pub server_overruns: u64,
+    /// The median of the server's per-second tick p50 over the load, ms.
+    pub server_tick_ms_p50_median_second: f64,
+    /// The worst of the server's per-second tick p99 over the load, ms.
+    pub server_tick_ms_p99_worst_second: f64,
+    /// Rollbacks the server reported over the load.
+    pub server_rollbacks: u64,
+    /// Per second.
+    pub server_rollbacks_per_s: f64,
+    /// The deepest rollback the server reported over the load, ticks.
+    pub server_rollback_depth_max: u32,
     /// Times a client's tick clock was re-anchored because the server's batches showed it more
     /// than [`crate::load::RESYNC_TICKS`] off (the server stalled, or dropped a backlog).
     pub clock_resyncs: u64,
@@ -66,6 +78,8 @@ pub struct Report {
     pub margin_ticks_p99: i32,
     /// Acked inputs that arrived late, each a rollback on the server.
     pub rollbacks_caused: u64,
+    /// Per second of load.
+    pub rollbacks_caused_per_s: f64,
     /// The same per client.
     pub per_client: Vec<ClientTiming>,
     /// Latency histogram: `(upper bound ms, count)` per 5 ms bucket.
@@ -110,12 +124,13 @@ impl std::fmt::Display for Report {
         )?;
         writeln!(
             f,
-            "  events   {} ({:.0}/s) | corrections {} ({:.1}/s), depth p50 {:.0} max {:.0} ticks",
+            "  events   {} ({:.0}/s) | corrections {} ({:.1}/s), depth p50 {:.0} p99 {:.0} max {:.0} ticks",
             self.events_received,
             self.events_per_s,
             self.corrections,
             self.corrections_per_s,
             self.correction_depth_p50,
+            self.correction_depth_p99,
             self.correction_depth_max
         )?;
         let timing = match self.timing {
@@ -125,8 +140,12 @@ impl std::fmt::Display for Report {
         };
         writeln!(
             f,
-            "  timing   {timing} | arrival margin p1 {} p50 {} p99 {} ticks | late (rollbacks caused) {}",
-            self.margin_ticks_p1, self.margin_ticks_p50, self.margin_ticks_p99, self.rollbacks_caused
+            "  timing   {timing} | arrival margin p1 {} p50 {} p99 {} ticks | late (rollbacks caused) {} ({:.1}/s)",
+            self.margin_ticks_p1,
+            self.margin_ticks_p50,
+            self.margin_ticks_p99,
+            self.rollbacks_caused,
+            self.rollbacks_caused_per_s
         )?;
         if let Some(worst) = self.per_client.iter().max_by_key(|c| (c.rollbacks_caused, std::cmp::Reverse(c.client))) {
             writeln!(
@@ -143,8 +162,14 @@ impl std::fmt::Display for Report {
         writeln!(f, "  views    {} confirmed ticks matched, {} differed", self.views_matched, self.views_mismatched)?;
         write!(
             f,
-            "  server   tick p99 {:.3} ms, overruns {} | client clocks resynced {}",
-            self.server_tick_ms_p99, self.server_overruns, self.clock_resyncs
+            "  server   under load: tick p50 {:.3} ms (median second), p99 {:.3} ms (worst second), rollbacks {:.1}/s \
+             (deepest {}) | overruns {} | client clocks resynced {}",
+            self.server_tick_ms_p50_median_second,
+            self.server_tick_ms_p99_worst_second,
+            self.server_rollbacks_per_s,
+            self.server_rollback_depth_max,
+            self.server_overruns,
+            self.clock_resyncs
         )
     }
 }
