@@ -74,20 +74,19 @@ fn first_hits(w: &World, rays: &[Ray], best: &mut [Best]) {
     // and a branch that is rarely taken. Culling only skips bodies a ray cannot hit first, so the
     // answer is the scan's.
     let b = &w.bodies;
-    let mut reach: Vec<f64> = rays.iter().map(|r| r.max_m).collect();
     for i in 0..b.len() {
         let p = b.pos[i];
         // Conservative by a hair: rounding must never cull a grazing hit.
         let r = b.radius[i] * (1.0 + 1e-9) + 1e-9;
-        for (k, ray) in rays.iter().enumerate() {
+        for (ray, best) in rays.iter().zip(best.iter_mut()) {
+            let reach = best.map_or(ray.max_m, |(bs, _, _)| bs);
             let to = p - ray.origin;
-            let d = to - ray.dir * to.dot(ray.dir).clamp(0.0, reach[k]);
+            let d = to - ray.dir * to.dot(ray.dir).clamp(0.0, reach);
             if d.length_squared() > r * r || Some(b.id[i]) == ray.exclude {
                 continue;
             }
             let hit = cast_shape(&b.shape[i], p, b.rot[i], ray.origin, ray.dir, ray.max_m);
-            consider(&mut best[k], hit, b.id[i], ray.max_m);
-            reach[k] = best[k].map_or(ray.max_m, |(bs, _, _)| bs);
+            consider(best, hit, b.id[i], ray.max_m);
         }
     }
     let s = &w.statics;
