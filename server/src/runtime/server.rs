@@ -221,6 +221,10 @@ struct ClientState {
     encoding: Encoding,
     /// Its recent delays, for the lead recommended in its acks.
     timing: LeadEstimator,
+    /// Its `client/{id}/ack` and `client/{id}/events` keys, formatted once (a key is formatted
+    /// for every ack and event batch otherwise: 5 % of the tick at 1,000 clients).
+    ack_key: String,
+    events_key: String,
 }
 
 /// Counters shared with the callbacks.
@@ -479,8 +483,31 @@ impl TickLoop {
         send(&self.egress, &self.shared, key, msg, encoding);
     }
 
+    /// A client's key: its ack and events keys from its state when it has one.
     fn client_key(&self, pattern: keys::KeyPattern, client: ClientId) -> String {
+        if let Some(c) = self.clients.get(&client) {
+            if pattern.pattern == keys::CLIENT_ACK.pattern {
+                return c.ack_key.clone();
+            }
+            if pattern.pattern == keys::CLIENT_EVENTS.pattern {
+                return c.events_key.clone();
+            }
+        }
         pattern.key(&self.world, Some(client))
+    }
+
+    /// The state of a client first seen now.
+    fn new_client(&self, client: ClientId, present: bool, leave_at: Option<u32>, encoding: Encoding) -> ClientState {
+        ClientState {
+            avatar: None,
+            present,
+            leave_at,
+            tokens: f64::from(self.opts.inputs_per_client_per_s),
+            encoding,
+            timing: LeadEstimator::default(),
+            ack_key: keys::CLIENT_ACK.key(&self.world, Some(client)),
+            events_key: keys::CLIENT_EVENTS.key(&self.world, Some(client)),
+        }
     }
 
     fn run(
@@ -607,15 +634,12 @@ impl TickLoop {
         while let Ok(Ingress { input, encoding }) = ingress.try_recv() {
             queued += 1;
             let (client, seq, tick) = (input.client, input.seq, input.tick);
-            let ack_key = self.client_key(keys::CLIENT_ACK, client);
-            let state = self.clients.entry(client).or_insert(ClientState {
-                avatar: None,
-                present: false,
-                leave_at: Some(now.0 + self.opts.grace_ticks),
-                tokens: f64::from(self.opts.inputs_per_client_per_s),
-                encoding,
-                timing: LeadEstimator::default(),
-            });
+            if !self.clients.contains_key(&client) {
+                let state = self.new_client(client, false, Some(now.0 + self.opts.grace_ticks), encoding);
+                self.clients.insert(client, state);
+            }
+            let state = self.clients.get_mut(&client).expect("inserted above");
+            let ack_key = state.ack_key.clone();
             state.encoding = encoding;
             if state.tokens < 1.0 {
                 self.count_reject(RejectReason::RateLimited);
@@ -771,14 +795,7 @@ impl TickLoop {
             return;
         }
         self.summary.clients += 1;
-        let state = ClientState {
-            avatar: None,
-            present: true,
-            leave_at: None,
-            tokens: f64::from(self.opts.inputs_per_client_per_s),
-            encoding: self.opts.encoding,
-            timing: LeadEstimator::default(),
-        };
+        let state = self.new_client(client, true, None, self.opts.encoding);
         let had = self.clients.insert(client, state).is_some();
         match (&self.avatar, had) {
             (Some(rule), _) => {
