@@ -68,7 +68,7 @@ fn grow(s: &Session, from: Tick, now: Tick, reach: &mut BTreeSet<EntityId>, limi
             let boxes: Vec<Aabb> =
                 reach.iter().filter_map(|id| f.state.bodies.slot(*id)).map(|slot| f.paths[slot]).collect();
             let Some(hull) = boxes.iter().copied().reduce(|a, b| a.union(&b)) else { continue };
-            let set = SortedBoxes::new(boxes.into_iter().map(|b| (b, 0)));
+            let set = SortedBoxes::new(boxes);
             for (slot, p) in f.paths.iter().enumerate() {
                 if p.overlaps(&hull) && set.hits(p) {
                     reach.insert(f.state.bodies.id[slot]);
@@ -158,7 +158,7 @@ fn crossings(s: &Session, from: Tick, run: &SubRun, reach: &BTreeSet<EntityId>) 
         let f = s.history.get(Tick(from.0 + n as u32)).expect("held");
         debug_assert_eq!(ids.len(), boxes.len());
         let Some(hull) = boxes.iter().copied().reduce(|a, b| a.union(&b)) else { continue };
-        let set = SortedBoxes::new(boxes.iter().map(|b| (*b, 0)));
+        let set = SortedBoxes::new(boxes.iter().copied());
         for (slot, p) in f.paths.iter().enumerate() {
             let id = f.state.bodies.id[slot];
             if !reach.contains(&id) && p.overlaps(&hull) && set.hits(p) {

@@ -483,17 +483,16 @@ impl TickLoop {
         send(&self.egress, &self.shared, key, msg, encoding);
     }
 
-    /// A client's key: its ack and events keys from its state when it has one.
-    fn client_key(&self, pattern: keys::KeyPattern, client: ClientId) -> String {
-        if let Some(c) = self.clients.get(&client) {
-            if pattern.pattern == keys::CLIENT_ACK.pattern {
-                return c.ack_key.clone();
-            }
-            if pattern.pattern == keys::CLIENT_EVENTS.pattern {
-                return c.events_key.clone();
-            }
-        }
-        pattern.key(&self.world, Some(client))
+    /// A client's `client/{id}/ack` key (formatted once, when the client was first seen).
+    fn ack_key(&self, client: ClientId) -> String {
+        self.clients.get(&client).map_or_else(|| keys::CLIENT_ACK.key(&self.world, Some(client)), |c| c.ack_key.clone())
+    }
+
+    /// A client's `client/{id}/events` key, likewise.
+    fn events_key(&self, client: ClientId) -> String {
+        self.clients
+            .get(&client)
+            .map_or_else(|| keys::CLIENT_EVENTS.key(&self.world, Some(client)), |c| c.events_key.clone())
     }
 
     /// The state of a client first seen now.
@@ -742,16 +741,12 @@ impl TickLoop {
         }
         for r in &adv.rays {
             let e = self.clients.get(&r.client).map_or(enc, |c| c.encoding);
-            self.put(self.client_key(keys::CLIENT_ACK, r.client), &ServerMessage::RayResult(r.clone()), e);
+            self.put(self.ack_key(r.client), &ServerMessage::RayResult(r.clone()), e);
         }
         for s in &adv.skipped {
             self.count_reject(s.reason);
             let e = self.clients.get(&s.client).map_or(enc, |c| c.encoding);
-            self.put(
-                self.client_key(keys::CLIENT_ACK, s.client),
-                &reject(s.client, s.seq, adv.tick, s.reason, s.detail.clone()),
-                e,
-            );
+            self.put(self.ack_key(s.client), &reject(s.client, s.seq, adv.tick, s.reason, s.detail.clone()), e);
         }
         for (client, entity) in &adv.spawned {
             if let Some(c) = self.clients.get_mut(client) {
@@ -777,7 +772,7 @@ impl TickLoop {
             max_rewind_ticks: cfg.max_rewind_ticks.min(self.session.config().window_ticks),
         });
         let e = self.clients.get(&client).map_or(self.opts.encoding, |c| c.encoding);
-        self.put(self.client_key(keys::CLIENT_ACK, client), &msg, e);
+        self.put(self.ack_key(client), &msg, e);
     }
 
     fn join(&mut self, client: ClientId) {
@@ -834,7 +829,7 @@ impl TickLoop {
         }
         for (client, evs) in by_client {
             let e = self.clients.get(&client).map_or(self.opts.encoding, |c| c.encoding);
-            self.put(self.client_key(keys::CLIENT_EVENTS, client), &make(evs), e);
+            self.put(self.events_key(client), &make(evs), e);
         }
     }
 
