@@ -19,7 +19,7 @@ use crate::timing::{Margins, Timing, DILATION};
 use crate::view::View;
 use hdrhistogram::Histogram;
 use impact_protocol::{
-    keys, Action, ClientId, ClientInput, ClientMessage, Encoding, EntityId, ServerMessage, Tick, WorldId,
+    keys, Action, ClientId, ClientInput, ClientMessage, Encoding, EntityId, RejectReason, ServerMessage, Tick, WorldId,
 };
 use std::collections::BTreeMap;
 use std::io::{IsTerminal, Write};
@@ -54,8 +54,11 @@ pub struct LoadConfig {
     pub clients: u32,
     /// Id of the first client.
     pub first_client: u32,
-    /// Zenoh sessions the clients share.
+    /// Zenoh sessions the clients share (ignored with `users`: one session per client).
     pub sessions: u32,
+    /// Credentials by client id (a server's `--users` file): each client then has a session of
+    /// its own, authenticated as the user that is that client, as a real deployment would.
+    pub users: Option<impact_server::runtime::auth::Users>,
     /// Length of the load.
     pub duration: Duration,
     /// Client -> server path.
@@ -76,6 +79,61 @@ pub struct LoadConfig {
     pub settle: Duration,
     /// Live progress.
     pub progress: bool,
+    /// Faults to inject (none by default).
+    pub faults: Faults,
+}
+
+/// Faults injected into a load run: the fault simulation of `tests/tests/faults.rs` (in the
+/// spirit of TigerBeetle's VOPR). [`Faults::from_seed`] draws them from one seed, so a failing
+/// run is reproduced by its seed.
+#[derive(Clone, Debug, Default)]
+pub struct Faults {
+    /// Probability that a delivered input is delivered a second time (a retransmission).
+    pub duplicate: f64,
+    /// Network partitions between the clients and the server: (start after the load began,
+    /// length). Nothing crosses in either direction during one; what was sent meanwhile is
+    /// delivered after it, in order, as Zenoh over TCP does after a stalled link recovers.
+    pub partitions: Vec<(Duration, Duration)>,
+    /// The server's process id, to stall it with SIGSTOP and resume it with SIGCONT.
+    pub stall_pid: Option<u32>,
+    /// Server stalls: (start after the load began, length).
+    pub stalls: Vec<(Duration, Duration)>,
+}
+
+impl Faults {
+    /// Faults for a run of `duration` drawn from `seed`: up to 10 % duplicated inputs, one or
+    /// two partitions of 0.1 to 1.5 s, and (with `stall_pid`) one or two stalls of 0.1 to 1 s.
+    pub fn from_seed(seed: u64, duration: Duration, stall_pid: Option<u32>) -> Faults {
+        let mut rng = Rng::new(seed ^ 0x5eed_fa17);
+        let d = duration.as_secs_f64();
+        let mut windows = |n: usize, max_len: f64| -> Vec<(Duration, Duration)> {
+            (0..n)
+                .map(|_| {
+                    let len = 0.1 + rng.unit() * (max_len - 0.1);
+                    let start = rng.unit() * (d - len).max(0.0);
+                    (Duration::from_secs_f64(start), Duration::from_secs_f64(len))
+                })
+                .collect()
+        };
+        let partitions = windows(1 + (seed % 2) as usize, 1.5);
+        let stalls = if stall_pid.is_some() { windows(1 + (seed / 2 % 2) as usize, 1.0) } else { Vec::new() };
+        let duplicate = Rng::new(seed).unit() * 0.1;
+        Faults { duplicate, partitions, stall_pid, stalls }
+    }
+
+    fn partitioned(&self, since_start: Duration) -> bool {
+        self.partitions.iter().any(|&(a, len)| since_start >= a && since_start < a + len)
+    }
+
+    fn stalled(&self, since_start: Duration) -> bool {
+        self.stalls.iter().any(|&(a, len)| since_start >= a && since_start < a + len)
+    }
+}
+
+/// Stops or resumes a process (SIGSTOP / SIGCONT) with `kill`, so nothing unsafe is needed here.
+fn signal(pid: u32, stop: bool) {
+    let sig = if stop { "-STOP" } else { "-CONT" };
+    let _ = std::process::Command::new("kill").arg(sig).arg(pid.to_string()).status();
 }
 
 enum Inbound {
@@ -91,6 +149,10 @@ struct Client {
     seq: u32,
     next_action: Instant,
     sent: BTreeMap<u32, Instant>,
+    /// Answers owed by the server, per seq: one per delivery (two for a duplicated input).
+    owed: BTreeMap<u32, u32>,
+    /// Seqs acked, kept only while duplicates are injected: a second ack is a replay accepted.
+    acked: std::collections::BTreeSet<u32>,
     view: View,
     /// Ahead mode: the lead in use (ticks; `None` until the first ack recommends one), the
     /// lead recommended last, and when the lead was last moved.
@@ -118,12 +180,29 @@ impl Client {
             seq: 0,
             next_action,
             sent: BTreeMap::new(),
+            owed: BTreeMap::new(),
+            acked: Default::default(),
             view: View::default(),
             lead: None,
             lead_target: 0.0,
             lead_at: None,
             margins: Margins::default(),
             corrections: 0,
+        }
+    }
+
+    /// Counts an answer to `seq`; false when none was owed (answered twice, or never sent).
+    fn answered(&mut self, seq: u32) -> bool {
+        match self.owed.get_mut(&seq) {
+            Some(n) if *n > 1 => {
+                *n -= 1;
+                true
+            }
+            Some(_) => {
+                self.owed.remove(&seq);
+                true
+            }
+            None => false,
         }
     }
 
@@ -214,12 +293,29 @@ fn act(c: &mut Client, rng: &mut Rng, timing: Timing, now: Instant) -> Option<Cl
     Some(ClientInput { client: c.id, seq: c.seq, tick, view_tick, actions: vec![action] })
 }
 
+/// The sessions the clients share, or with `users` one per client, authenticated as its user.
+fn open_sessions(cfg: &LoadConfig) -> anyhow::Result<Vec<zenoh::Session>> {
+    let file = cfg.zenoh_config.as_deref();
+    let Some(users) = &cfg.users else {
+        return (0..cfg.sessions.max(1)).map(|_| crate::net::open(&cfg.connect, file, None)).collect();
+    };
+    let mut sessions = Vec::with_capacity(cfg.clients as usize);
+    for k in 0..cfg.clients {
+        let id = cfg.first_client + k;
+        let u = users.for_client(id).ok_or_else(|| anyhow::anyhow!("the users file has no user for client {id}"))?;
+        let creds = crate::net::Credentials { user: u.name.clone(), password: u.password.clone() };
+        sessions.push(crate::net::open(&cfg.connect, file, Some(&creds))?);
+        if cfg.progress && (k + 1) % 100 == 0 {
+            eprintln!("  {} of {} sessions authenticated", k + 1, cfg.clients);
+        }
+    }
+    Ok(sessions)
+}
+
 /// Runs the load and returns its report.
 pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
     let n = cfg.clients as usize;
-    let sessions: Vec<zenoh::Session> = (0..cfg.sessions.max(1))
-        .map(|_| crate::net::open(&cfg.connect, cfg.zenoh_config.as_deref()))
-        .collect::<anyhow::Result<_>>()?;
+    let sessions = open_sessions(cfg)?;
     let inbox: Arc<Mutex<Vec<(Instant, Inbound)>>> = Arc::new(Mutex::new(Vec::new()));
     const INBOX_MAX: usize = 1 << 20;
     let dropped_inbox = Arc::new(std::sync::atomic::AtomicU64::new(0));
@@ -278,13 +374,13 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
     }
 
     let mut rng = Rng::new(cfg.seed);
-    let mut up: DelayLine<(usize, Vec<u8>)> = DelayLine::new(1 << 20);
+    let mut up: DelayLine<(usize, u32, Vec<u8>)> = DelayLine::new(1 << 20);
     let mut down: DelayLine<Inbound> = DelayLine::new(1 << 21);
     let mut latency = Histogram::<u64>::new_with_bounds(1, 60_000_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut depth = Histogram::<u64>::new_with_bounds(1, 100_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut r = Report {
         clients: cfg.clients,
-        sessions: cfg.sessions.max(1),
+        sessions: sessions.len() as u32,
         duration_s: cfg.duration.as_secs_f64(),
         ..Report::default()
     };
@@ -298,6 +394,7 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
     let mut second_p50s: Vec<f64> = Vec::new();
     let tty = std::io::stderr().is_terminal();
     let input_keys: Vec<String> = clients.iter().map(|c| keys::INPUT.key(&cfg.world, Some(c.id))).collect();
+    let mut server_stopped = false;
     loop {
         let now = Instant::now();
         if now >= stop {
@@ -308,11 +405,13 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
         for (at, m) in arrived {
             down.send(at, &cfg.downlink, &mut rng, m);
         }
-        while let Some(m) = down.pop_due(now) {
+        let cut = cfg.faults.partitioned(now.saturating_duration_since(load_start));
+        while let Some(m) = if cut { None } else { down.pop_due(now) } {
             match m {
                 Inbound::Stats(s) => {
                     r.server_tick_ms_p99 = s.tick_ms_p99;
                     r.server_overruns = s.overruns;
+                    r.server_queue_depth_max = r.server_queue_depth_max.max(s.queue_depth_max);
                     if now < load_end && second_p50s.len() < STATS_SECONDS_MAX {
                         // The server's seconds under load: their median p50, their worst p99,
                         // and the rollbacks they counted.
@@ -343,13 +442,26 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
                             r.clock_resyncs += u64::from(c.observe(a.server_tick, now));
                             c.margins.record(a.margin_ticks);
                             c.recommend(a.lead_ticks);
+                            r.answers_unexpected += u64::from(!c.answered(a.seq));
+                            if cfg.faults.duplicate > 0.0 && !c.acked.insert(a.seq) {
+                                r.answers_unexpected += 1; // a duplicate delivery was accepted
+                            }
                             if let Some(sent) = c.sent.remove(&a.seq) {
                                 r.acks += 1;
                                 let _ = latency.record((now - sent).as_micros().max(1) as u64);
                             }
                         }
                         ServerMessage::Reject(j) => {
-                            c.sent.remove(&j.seq);
+                            if let Some(seq) = j.seq {
+                                c.sent.remove(&seq);
+                                // An accepted input whose entity went away before its tick was
+                                // re-simulated is told so by a second message (PROTOCOL.md).
+                                let after_ack =
+                                    matches!(j.reason, RejectReason::UnknownEntity | RejectReason::NotOwner);
+                                r.answers_unexpected += u64::from(!c.answered(seq) && !after_ack);
+                            } else {
+                                r.answers_unexpected += 1;
+                            }
                             *r.rejects.entry(j.reason.name().to_string()).or_insert(0) += 1;
                         }
                         ServerMessage::Events(b) => {
@@ -384,17 +496,34 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
                     let seq = input.seq;
                     if let Ok(bytes) = impact_protocol::encode(&ClientMessage::Input(input), cfg.encoding) {
                         r.inputs_sent += 1;
-                        if up.send(now, &cfg.uplink, &mut rng, (k, bytes)) {
+                        let twice = rng.unit() < cfg.faults.duplicate;
+                        if up.send(now, &cfg.uplink, &mut rng, (k, seq, bytes.clone())) {
                             c.sent.insert(seq, now);
+                            if twice && up.send(now, &Link { loss: 0.0, ..cfg.uplink }, &mut rng, (k, seq, bytes)) {
+                                r.inputs_duplicated += 1;
+                            }
                         }
                     }
                 }
             }
         }
-        while let Some((k, bytes)) = up.pop_due(now) {
+        // Faults: a partition holds both lines (they are FIFO, so holding is delaying); a stall
+        // stops the server process.
+        let since = now.saturating_duration_since(load_start);
+        let cut = cfg.faults.partitioned(since);
+        if let Some(pid) = cfg.faults.stall_pid {
+            let want = cfg.faults.stalled(since);
+            if want != server_stopped {
+                signal(pid, want);
+                server_stopped = want;
+                r.server_stalls += u64::from(want);
+            }
+        }
+        while let Some((k, seq, bytes)) = if cut { None } else { up.pop_due(now) } {
             let s = &sessions[k % sessions.len()];
             if s.put(&input_keys[k], bytes).encoding(cfg.encoding.zenoh_tag()).wait().is_ok() {
                 r.inputs_delivered += 1;
+                *clients[k].owed.entry(seq).or_insert(0) += 1;
             }
         }
         if last_progress.elapsed() >= Duration::from_secs(1) {
@@ -426,7 +555,12 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
         eprintln!();
     }
     r.inputs_lost_in_network = up.lost;
-    r.inputs_unanswered = clients.iter().map(|c| c.sent.len() as u64).sum();
+    if server_stopped {
+        if let Some(pid) = cfg.faults.stall_pid {
+            signal(pid, false);
+        }
+    }
+    r.inputs_unanswered = clients.iter().map(|c| c.owed.values().map(|&n| u64::from(n)).sum::<u64>()).sum();
     r.latency_ms_p50 = latency.value_at_quantile(0.5) as f64 / 1000.0;
     r.latency_ms_p99 = latency.value_at_quantile(0.99) as f64 / 1000.0;
     r.latency_ms_max = latency.max() as f64 / 1000.0;

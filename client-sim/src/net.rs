@@ -4,8 +4,19 @@
 use std::path::Path;
 use zenoh::Wait;
 
-/// Opens a session connected to `connect` (or configured by `file`).
-pub fn open(connect: &[String], file: Option<&Path>) -> anyhow::Result<zenoh::Session> {
+/// A Zenoh user name and password (for a server started with `--users`).
+#[derive(Clone, Debug)]
+pub struct Credentials {
+    /// User name.
+    pub user: String,
+    /// Password.
+    pub password: String,
+}
+
+/// Opens a session connected to `connect` (or configured by `file`), authenticated as `creds`
+/// if given. Without a configuration file, a session that cannot reach every endpoint within
+/// 10 s (no server there, or it refused the credentials) is an error, not a silent wait.
+pub fn open(connect: &[String], file: Option<&Path>, creds: Option<&Credentials>) -> anyhow::Result<zenoh::Session> {
     let mut c = match file {
         Some(p) => zenoh::Config::from_file(p).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?,
         None => {
@@ -13,6 +24,8 @@ pub fn open(connect: &[String], file: Option<&Path>) -> anyhow::Result<zenoh::Se
             c.insert_json5("mode", "\"peer\"").map_err(|e| anyhow::anyhow!("{e}"))?;
             c.insert_json5("scouting/multicast/enabled", "false").map_err(|e| anyhow::anyhow!("{e}"))?;
             c.insert_json5("listen/endpoints", "[]").map_err(|e| anyhow::anyhow!("{e}"))?;
+            c.insert_json5("connect/timeout_ms", "10000").map_err(|e| anyhow::anyhow!("{e}"))?;
+            c.insert_json5("connect/exit_on_failure", "true").map_err(|e| anyhow::anyhow!("{e}"))?;
             c
         }
     };
@@ -20,7 +33,11 @@ pub fn open(connect: &[String], file: Option<&Path>) -> anyhow::Result<zenoh::Se
         let list = serde_json::to_string(connect)?;
         c.insert_json5("connect/endpoints", &list).map_err(|e| anyhow::anyhow!("{e}"))?;
     }
-    zenoh::open(c).wait().map_err(|e| anyhow::anyhow!("opening a zenoh session: {e}"))
+    if let Some(k) = creds {
+        impact_server::runtime::auth::client_credentials(&mut c, &k.user, &k.password)?;
+    }
+    let who = creds.map_or(String::new(), |k| format!(" as user {:?}", k.user));
+    zenoh::open(c).wait().map_err(|e| anyhow::anyhow!("opening a zenoh session to {}{who}: {e}", connect.join(", ")))
 }
 
 /// Decodes a sample's payload by its encoding tag (MessagePack when untagged).

@@ -26,6 +26,13 @@ pub struct Report {
     pub rejects: BTreeMap<String, u64>,
     /// Inputs delivered but neither acked nor rejected (should be 0 once settled).
     pub inputs_unanswered: u64,
+    /// Inputs delivered a second time (the fault `duplicate`).
+    pub inputs_duplicated: u64,
+    /// Answers for which no delivery was owed (an input answered twice), and, while duplicates
+    /// are injected, second acks of one seq (a duplicate accepted). Should be 0.
+    pub answers_unexpected: u64,
+    /// Times the server process was stalled (SIGSTOP) by the fault injection.
+    pub server_stalls: u64,
     /// Input to ack latency, ms: median (round trip through the simulated network and the tick).
     pub latency_ms_p50: f64,
     /// 99th percentile, ms.
@@ -62,6 +69,8 @@ pub struct Report {
     pub server_rollbacks: u64,
     /// Per second.
     pub server_rollbacks_per_s: f64,
+    /// The deepest the server's ingress queue got over the run (from its stats).
+    pub server_queue_depth_max: u32,
     /// The deepest rollback the server reported over the load, ticks.
     pub server_rollback_depth_max: u32,
     /// Times a client's tick clock was re-anchored because the server's batches showed it more
@@ -112,8 +121,8 @@ impl std::fmt::Display for Report {
         )?;
         writeln!(
             f,
-            "  inputs   sent {} | lost in the network {} | delivered {} | acked {} | unanswered {}",
-            self.inputs_sent, self.inputs_lost_in_network, self.inputs_delivered, self.acks, self.inputs_unanswered
+            "  inputs   sent {} | lost in the network {} | delivered {} ({} twice) | acked {} | unanswered {} | answered unexpectedly {}",
+            self.inputs_sent, self.inputs_lost_in_network, self.inputs_delivered, self.inputs_duplicated, self.acks, self.inputs_unanswered, self.answers_unexpected
         )?;
         let rejects: Vec<String> = self.rejects.iter().map(|(k, v)| format!("{k} {v}")).collect();
         writeln!(f, "  rejects  {}", if rejects.is_empty() { "none".into() } else { rejects.join(", ") })?;

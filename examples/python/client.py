@@ -11,6 +11,10 @@ least one event batch, and an input sent after the first recommendation arrived 
 
     pip install eclipse-zenoh msgpack
     python3 examples/python/client.py --connect tcp/127.0.0.1:7447 --world arena
+
+Against a server started with `--users FILE`, pass the user that is your client id:
+
+    python3 examples/python/client.py --client 4242 --user player4242 --password ...
 """
 import argparse
 import json
@@ -28,6 +32,8 @@ def main():
     ap.add_argument("--world", default="arena")
     ap.add_argument("--client", type=int, default=4242)
     ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--user", help="Zenoh user name (a server with --users)")
+    ap.add_argument("--password", help="its password")
     args = ap.parse_args()
 
     conf = zenoh.Config()
@@ -35,6 +41,10 @@ def main():
     conf.insert_json5("connect/endpoints", json.dumps([args.connect]))
     conf.insert_json5("listen/endpoints", "[]")
     conf.insert_json5("scouting/multicast/enabled", "false")
+    if args.user:
+        # Zenoh's user/password authentication (PROTOCOL.md, "Access control").
+        conf.insert_json5("transport/auth/usrpwd/user", json.dumps(args.user))
+        conf.insert_json5("transport/auth/usrpwd/password", json.dumps(args.password or ""))
     session = zenoh.open(conf)
 
     prefix = f"impact/v1/{args.world}"
@@ -66,7 +76,8 @@ def main():
             if msg["seq"] in sent_with_lead and msg["margin_ticks"] >= 0:
                 state["on_time_after_lead"] += 1
         elif msg["type"] == "reject":
-            print(f"reject: {msg['reason']}: {msg['detail']}")
+            # seq and tick are nil only for a payload the server could not read that far.
+            print(f"reject of input {msg['seq']} (tick {msg['tick']}): {msg['reason']}: {msg['detail']}")
 
     def on_events(sample):
         msg = decode(sample)
@@ -97,7 +108,9 @@ def main():
         return w["tick"] + int((time.time() - welcomed_at) * w["tick_hz"])
 
     last = time.time()
-    for seq in range(1, 11):
+    # Seqs are nonces: start from the welcome's next_seq (PROTOCOL.md, "Replay protection").
+    first_seq = w.get("next_seq", 0)
+    for seq in range(first_seq, first_seq + 10):
         now = time.time()
         lead = 0.0
         if state["lead"] is not None:

@@ -45,8 +45,8 @@ fn main() {
     });
     let reject = ServerMessage::Reject(InputReject {
         client: ClientId(7),
-        seq: 43,
-        tick: Tick(1000),
+        seq: Some(43),
+        tick: Some(Tick(1000)),
         reason: RejectReason::Stale,
         detail: "tick 1000 is older than the window (oldest 1184)".into(),
         oldest_tick: Some(Tick(1184)),

@@ -7,6 +7,7 @@
 //! a value that reaches the caller is finite and in range.
 
 use crate::error::ProtocolError;
+use crate::ids::{ClientId, Tick};
 use crate::limits::MAX_DECODE_DEPTH;
 use crate::validate::Validate;
 use serde::de::DeserializeOwned;
@@ -92,35 +93,73 @@ pub fn decode<T: DeserializeOwned + Validate>(
     encoding: Encoding,
     max_bytes: usize,
 ) -> Result<T, ProtocolError> {
+    let msg: T = decode_unchecked(bytes, encoding, max_bytes)?;
+    msg.validate()?;
+    Ok(msg)
+}
+
+/// Decodes a message's structure without checking its values: the size limit, the depth limit,
+/// every field present with its type, no trailing bytes. The caller must [`Validate`] the result
+/// before it trusts a number in it; the server does so after reading the input's `seq` and
+/// `tick`, so a refused value is answered with them.
+pub fn decode_unchecked<T: DeserializeOwned>(
+    bytes: &[u8],
+    encoding: Encoding,
+    max_bytes: usize,
+) -> Result<T, ProtocolError> {
+    let (msg, used) = decode_prefix(bytes, encoding, max_bytes)?;
+    let rest = &bytes[used..];
+    let trailing = match encoding {
+        Encoding::MsgPack => !rest.is_empty(),
+        Encoding::Json => rest.iter().any(|b| !b.is_ascii_whitespace()),
+    };
+    if trailing {
+        return Err(ProtocolError::TrailingBytes { extra: rest.len() });
+    }
+    Ok(msg)
+}
+
+/// The first message in `bytes` and the bytes it took.
+fn decode_prefix<T: DeserializeOwned>(
+    bytes: &[u8],
+    encoding: Encoding,
+    max_bytes: usize,
+) -> Result<(T, usize), ProtocolError> {
     if bytes.len() > max_bytes {
         return Err(ProtocolError::TooLarge { len: bytes.len(), limit: max_bytes });
     }
-    let msg: T = match encoding {
+    match encoding {
         Encoding::MsgPack => {
             let mut de = rmp_serde::Deserializer::new(Cursor::new(bytes));
             de.set_max_depth(MAX_DECODE_DEPTH);
             let msg = T::deserialize(&mut de)
                 .map_err(|e| ProtocolError::Malformed { encoding: "msgpack", detail: e.to_string() })?;
-            let used = de.position() as usize;
-            if used != bytes.len() {
-                return Err(ProtocolError::TrailingBytes { extra: bytes.len() - used });
-            }
-            msg
+            Ok((msg, de.position() as usize))
         }
         Encoding::Json => {
             let mut stream = serde_json::Deserializer::from_slice(bytes).into_iter::<T>();
-            let msg = match stream.next() {
-                Some(Ok(msg)) => msg,
-                Some(Err(e)) => return Err(ProtocolError::Malformed { encoding: "json", detail: e.to_string() }),
-                None => return Err(ProtocolError::Malformed { encoding: "json", detail: "empty payload".into() }),
-            };
-            let rest = &bytes[stream.byte_offset()..];
-            if rest.iter().any(|b| !b.is_ascii_whitespace()) {
-                return Err(ProtocolError::TrailingBytes { extra: rest.len() });
+            match stream.next() {
+                Some(Ok(msg)) => Ok((msg, stream.byte_offset())),
+                Some(Err(e)) => Err(ProtocolError::Malformed { encoding: "json", detail: e.to_string() }),
+                None => Err(ProtocolError::Malformed { encoding: "json", detail: "empty payload".into() }),
             }
-            msg
         }
-    };
-    msg.validate()?;
-    Ok(msg)
+    }
+}
+
+/// The `client`, `seq` and `tick` of an input whose whole could not be decoded (an unknown
+/// action type, a field of the wrong type further in): every other field is skipped unread, so
+/// a malformed input is still answered with its own `seq` and `tick`. `None` when even these
+/// cannot be read (too large, truncated, not a map). Bytes after the message are ignored here.
+pub fn input_header(bytes: &[u8], encoding: Encoding, max_bytes: usize) -> Option<(ClientId, u32, Tick)> {
+    #[derive(serde::Deserialize)]
+    struct Header {
+        #[serde(rename = "type")]
+        kind: String,
+        client: ClientId,
+        seq: u32,
+        tick: Tick,
+    }
+    let (h, _): (Header, usize) = decode_prefix(bytes, encoding, max_bytes).ok()?;
+    (h.kind == "input").then_some((h.client, h.seq, h.tick))
 }

@@ -23,6 +23,14 @@ pub enum ProtocolError {
         /// The decoder's explanation.
         detail: String,
     },
+    /// An input carries more actions than [`MAX_ACTIONS_PER_INPUT`](crate::limits::MAX_ACTIONS_PER_INPUT).
+    #[error("input carries {count} actions, at most {limit} are allowed")]
+    TooManyActions {
+        /// Actions in the input.
+        count: usize,
+        /// The limit.
+        limit: usize,
+    },
     /// A whole message was decoded but bytes were left over.
     #[error("{extra} trailing bytes after a complete message")]
     TrailingBytes {
@@ -60,7 +68,7 @@ impl ProtocolError {
     /// The reason sent to a client whose input failed with this error.
     pub fn reject_reason(&self) -> RejectReason {
         match self {
-            ProtocolError::TooLarge { .. } => RejectReason::TooLarge,
+            ProtocolError::TooLarge { .. } | ProtocolError::TooManyActions { .. } => RejectReason::TooLarge,
             ProtocolError::NonFinite { .. } => RejectReason::InvalidNumber,
             ProtocolError::OutOfRange { .. } => RejectReason::OutOfRange,
             ProtocolError::Malformed { .. }

@@ -20,7 +20,7 @@ pub mod limits;
 pub mod message;
 pub mod validate;
 
-pub use codec::{decode, encode, Encoding};
+pub use codec::{decode, decode_unchecked, encode, input_header, Encoding};
 pub use error::ProtocolError;
 pub use event::{CollisionEvent, EventKey, EventStatus, Phase, Response};
 pub use ids::{ClientId, EntityId, Tick, WorldId};

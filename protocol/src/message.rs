@@ -257,10 +257,11 @@ pub struct InputReject {
     /// The sender, as far as it could be read (0 when the payload could not be decoded and the
     /// key named no client).
     pub client: ClientId,
-    /// The input's `seq` (0 when unknown).
-    pub seq: u32,
-    /// The input's tick (0 when unknown).
-    pub tick: Tick,
+    /// The input's `seq`; nil only when the payload could not be decoded as far as its `client`,
+    /// `seq` and `tick` (too large to read, truncated, not a map, ...).
+    pub seq: Option<u32>,
+    /// The input's tick; nil exactly when `seq` is.
+    pub tick: Option<Tick>,
     /// Why.
     pub reason: RejectReason,
     /// Human-readable detail: the field and the bound.
@@ -326,6 +327,11 @@ pub struct Welcome {
     /// How far back a hitscan ray is rewound at most, ticks (the scene's `max_rewind_ms`).
     #[serde(default)]
     pub max_rewind_ticks: u32,
+    /// The lowest `seq` the server will accept from this client: 0 for a new client, one past the
+    /// highest accepted for a client that reconnects within the grace period (seqs are never
+    /// reused while the server remembers the client; see Replay protection in `PROTOCOL.md`).
+    #[serde(default)]
+    pub next_seq: u32,
 }
 
 /// One body in a snapshot.

@@ -128,7 +128,7 @@ impl Validate for ClientInput {
     fn validate(&self) -> Result<(), ProtocolError> {
         if self.actions.len() > MAX_ACTIONS_PER_INPUT {
             // Too many actions is a size problem, reported as such.
-            return Err(ProtocolError::TooLarge { len: self.actions.len(), limit: MAX_ACTIONS_PER_INPUT });
+            return Err(ProtocolError::TooManyActions { count: self.actions.len(), limit: MAX_ACTIONS_PER_INPUT });
         }
         for (i, a) in self.actions.iter().enumerate() {
             a.validate_at(&|| format!("actions[{i}]"))?;

@@ -16,6 +16,7 @@ pub mod narrow;
 pub mod offline;
 pub mod query;
 pub mod rollback;
+#[cfg(feature = "runtime")]
 pub mod runtime;
 pub mod scene;
 pub mod sim;

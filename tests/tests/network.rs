@@ -47,7 +47,7 @@ fn an_input_is_acknowledged_and_moves_the_avatar() {
     let applied = ack
         .wait_for(Duration::from_secs(5), |m| match m {
             ServerMessage::Ack(a) if a.seq == 1 => Some(a.applied_tick),
-            ServerMessage::Reject(r) if r.seq == 1 => panic!("rejected: {r:?}"),
+            ServerMessage::Reject(r) if r.seq == Some(1) => panic!("rejected: {r:?}"),
             _ => None,
         })
         .expect("ack");
@@ -161,44 +161,62 @@ fn bad_inputs_are_rejected_with_reasons_and_others_are_still_served() {
     let _t2 = join(&s, &world, good);
     let (bad_avatar, tick) = welcome(&bad_ack);
     let (good_avatar, _) = welcome(&good_ack);
-    let reason = |inbox: &Inbox| {
-        inbox.wait_for(Duration::from_secs(5), |m| match m {
-            ServerMessage::Reject(r) => Some(r.reason),
-            _ => None,
-        })
+    // Every reject as (reason, seq, tick, detail).
+    let next_reject = |inbox: &Inbox| {
+        inbox
+            .wait_for(Duration::from_secs(5), |m| match m {
+                ServerMessage::Reject(r) => Some((r.reason, r.seq, r.tick, r.detail.clone())),
+                _ => None,
+            })
+            .expect("a reject")
     };
-    // Garbage bytes.
+    let input = |seq: u32, actions: Vec<Action>| ClientInput { view_tick: None, client: bad, seq, tick, actions };
+    let msgpack = |i: &ClientInput| rmp_serde::to_vec_named(&impact_protocol::ClientMessage::Input(i.clone())).unwrap();
+    // Garbage bytes: nothing to match, so the documented nil placeholder.
     send_raw(&s, &world, bad, vec![0xc1, 0xff, 0x00, 0x13], Encoding::MsgPack);
-    assert_eq!(reason(&bad_ack), Some(RejectReason::Malformed));
-    // Oversized.
+    let (reason, seq, t, _) = next_reject(&bad_ack);
+    assert_eq!((reason, seq, t), (RejectReason::Malformed, None, None));
+    // Oversized: refused before a byte is read.
     send_raw(&s, &world, bad, vec![b' '; 5000], Encoding::Json);
-    assert_eq!(reason(&bad_ack), Some(RejectReason::TooLarge));
-    // NaN.
-    let nan = ClientInput {
-        view_tick: None,
-        client: bad,
-        seq: 3,
-        tick,
-        actions: vec![Action::SetVelocity { entity: bad_avatar, velocity: [f64::NAN, 0.0, 0.0] }],
-    };
-    let bytes = rmp_serde::to_vec_named(&impact_protocol::ClientMessage::Input(nan)).unwrap();
-    send_raw(&s, &world, bad, bytes, Encoding::MsgPack);
-    assert_eq!(reason(&bad_ack), Some(RejectReason::InvalidNumber));
+    let (reason, seq, t, _) = next_reject(&bad_ack);
+    assert_eq!((reason, seq, t), (RejectReason::TooLarge, None, None));
+    // Values refused after decoding carry the input's own seq and tick.
+    let nan = input(3, vec![Action::SetVelocity { entity: bad_avatar, velocity: [f64::NAN, 0.0, 0.0] }]);
+    send_raw(&s, &world, bad, msgpack(&nan), Encoding::MsgPack);
+    let (reason, seq, t, detail) = next_reject(&bad_ack);
+    assert_eq!((reason, seq, t), (RejectReason::InvalidNumber, Some(3), Some(tick)), "{detail}");
+    let ray = Action::FireRay { shooter: bad_avatar, origin: [0.0; 3], direction: [0.0; 3], max_distance_m: 10.0 };
+    send_raw(&s, &world, bad, msgpack(&input(4, vec![ray])), Encoding::MsgPack);
+    let (reason, seq, t, detail) = next_reject(&bad_ack);
+    assert_eq!((reason, seq, t), (RejectReason::OutOfRange, Some(4), Some(tick)), "{detail}");
+    assert!(detail.contains("direction"), "{detail}");
+    let still = Action::SetVelocity { entity: bad_avatar, velocity: [0.0; 3] };
+    send_raw(&s, &world, bad, msgpack(&input(5, vec![still; 17])), Encoding::MsgPack);
+    let (reason, seq, t, detail) = next_reject(&bad_ack);
+    assert_eq!((reason, seq, t), (RejectReason::TooLarge, Some(5), Some(tick)), "{detail}");
+    assert!(detail.contains("17 actions") && detail.contains("16"), "{detail}");
+    // Malformed further in (an action type that does not exist): still matched by its header.
+    let unknown_action = serde_json::json!({"type": "input", "client": bad.0, "seq": 6, "tick": tick.0,
+        "actions": [{"type": "teleport", "entity": bad_avatar.0}]});
+    send_raw(&s, &world, bad, serde_json::to_vec(&unknown_action).unwrap(), Encoding::Json);
+    let (reason, seq, t, detail) = next_reject(&bad_ack);
+    assert_eq!((reason, seq, t), (RejectReason::Malformed, Some(6), Some(tick)), "{detail}");
     // Someone else's avatar.
     let foreign = ClientInput {
         view_tick: None,
         client: bad,
-        seq: 4,
+        seq: 7,
         tick: Tick(tick.0 + 2),
         actions: vec![Action::SetVelocity { entity: good_avatar, velocity: [1.0, 0.0, 0.0] }],
     };
     send(&s, &world, &foreign, Encoding::MsgPack);
-    assert_eq!(reason(&bad_ack), Some(RejectReason::NotOwner));
+    assert_eq!(next_reject(&bad_ack).0, RejectReason::NotOwner);
     // Claiming to be another client on one's own key.
-    let spoof = ClientInput { view_tick: None, client: good, seq: 5, tick: Tick(tick.0 + 2), actions: vec![] };
+    let spoof = ClientInput { view_tick: None, client: good, seq: 8, tick: Tick(tick.0 + 2), actions: vec![] };
     let bytes = impact_protocol::encode(&impact_protocol::ClientMessage::Input(spoof), Encoding::MsgPack).unwrap();
     send_raw(&s, &world, bad, bytes, Encoding::MsgPack);
-    assert_eq!(reason(&bad_ack), Some(RejectReason::NotOwner));
+    let (reason, seq, _, _) = next_reject(&bad_ack);
+    assert_eq!((reason, seq), (RejectReason::NotOwner, Some(8)));
     // The other client is served throughout.
     let fine = ClientInput {
         view_tick: None,
@@ -321,6 +339,7 @@ fn ahead_clients_arrive_on_time_behind_clients_are_rolled_back_and_both_see_the_
             clients: 20,
             first_client: first,
             sessions: 1,
+            users: None,
             duration: Duration::from_secs(4),
             uplink: link,
             downlink: link,
@@ -330,6 +349,7 @@ fn ahead_clients_arrive_on_time_behind_clients_are_rolled_back_and_both_see_the_
             encoding: Encoding::MsgPack,
             seed: 3,
             settle: Duration::from_millis(1500),
+            faults: Default::default(),
             progress: false,
         };
         let r = load::run(&cfg).expect("load runs");

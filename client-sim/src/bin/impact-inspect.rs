@@ -16,6 +16,12 @@ struct Args {
     /// Server (or router) endpoint(s).
     #[arg(long, default_value = "tcp/127.0.0.1:7447", global = true)]
     connect: Vec<String>,
+    /// Zenoh user name, for a server started with `--users` (public streams and queries only).
+    #[arg(long, global = true, requires = "password")]
+    user: Option<String>,
+    /// Password for --user.
+    #[arg(long, global = true, requires = "user")]
+    password: Option<String>,
     /// World name (default: every world).
     #[arg(long, global = true)]
     world: Option<String>,
@@ -180,9 +186,15 @@ fn main() -> Result<()> {
     }
 }
 
+/// A session to the server, authenticated when --user is given.
+fn open(a: &Args) -> Result<zenoh::Session> {
+    let creds = a.user.clone().zip(a.password.clone()).map(|(user, password)| net::Credentials { user, password });
+    net::open(&a.connect, None, creds.as_ref())
+}
+
 fn query(a: &Args, world: Option<WorldId>, pattern: keys::KeyPattern, params: &str, f: &Filter) -> Result<()> {
     let Some(world) = world else { bail!("--world is required for queries") };
-    let session = net::open(&a.connect, None)?;
+    let session = open(a)?;
     let key = pattern.key(&world, None);
     let replies = session
         .get(format!("{key}?{params}"))
@@ -231,7 +243,7 @@ fn query(a: &Args, world: Option<WorldId>, pattern: keys::KeyPattern, params: &s
 }
 
 fn tap(a: &Args, world: Option<WorldId>, f: &Filter) -> Result<()> {
-    let session = net::open(&a.connect, None)?;
+    let session = open(a)?;
     let (tx, rx) = std::sync::mpsc::sync_channel::<(String, Vec<u8>, String)>(65_536);
     let mut subs = Vec::new();
     for p in [keys::EVENTS, keys::CORRECTIONS, keys::CONFIRMED] {

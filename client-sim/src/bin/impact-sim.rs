@@ -29,9 +29,13 @@ struct Args {
     /// Id of the first client (run several sims side by side with different ranges).
     #[arg(long, default_value_t = 1000)]
     first_client: u32,
-    /// Zenoh sessions the clients share (default: one per 100 clients).
+    /// Zenoh sessions the clients share (default: one per 100 clients; with --users one each).
     #[arg(long)]
     sessions: Option<u32>,
+    /// The server's users file: each client authenticates as the user that is its client id,
+    /// over a session of its own.
+    #[arg(long)]
+    users: Option<PathBuf>,
     /// Length of the load, e.g. 30s or 2m.
     #[arg(long, default_value = "10s", value_parser = parse_duration)]
     duration: Duration,
@@ -128,7 +132,12 @@ fn main() -> Result<()> {
         world: WorldId::new(a.world.clone()).map_err(anyhow::Error::msg)?,
         clients: a.clients,
         first_client: a.first_client,
-        sessions: a.sessions.unwrap_or_else(|| a.clients.div_ceil(100).max(1)),
+        sessions: if a.users.is_some() {
+            a.clients
+        } else {
+            a.sessions.unwrap_or_else(|| a.clients.div_ceil(100).max(1))
+        },
+        users: a.users.as_deref().map(impact_server::runtime::auth::Users::load).transpose()?,
         duration: a.duration,
         uplink: Link { latency: ms(a.latency_ms), jitter: ms(a.jitter_ms), loss: a.loss },
         downlink: Link { latency: ms(a.latency_ms), jitter: ms(a.jitter_ms), loss: 0.0 },
@@ -140,6 +149,7 @@ fn main() -> Result<()> {
         // Long enough for the last inputs to be acked and their ticks confirmed.
         settle: ms(4.0 * (a.latency_ms + a.jitter_ms) + 1500.0),
         progress: true,
+        faults: Default::default(),
     };
     eprintln!(
         "impact-sim: {} clients ({:?}, timing {:?}) over {} sessions -> {}, {} s, latency {} +- {} ms, loss {}",

@@ -116,11 +116,18 @@ pub fn server_message() -> impl Strategy<Value = ServerMessage> {
                 lead_ticks: seq % 17,
             })
         }),
-        (client(), any::<u32>(), tick(), reason(), "[a-z ]{0,40}", option::of(tick()), option::of(tick())).prop_map(
-            |(client, seq, tick, reason, detail, oldest_tick, newest_tick)| {
+        (
+            client(),
+            option::of((any::<u32>(), tick())),
+            reason(),
+            "[a-z ]{0,40}",
+            option::of(tick()),
+            option::of(tick())
+        )
+            .prop_map(|(client, header, reason, detail, oldest_tick, newest_tick)| {
+                let (seq, tick) = (header.map(|h| h.0), header.map(|h| h.1));
                 ServerMessage::Reject(InputReject { client, seq, tick, reason, detail, oldest_tick, newest_tick })
-            }
-        ),
+            }),
         (client(), any::<u32>(), tick(), entity(), option::of((entity(), vec3(), unit3(), 0.0..1.0e4f64))).prop_map(
             |(client, seq, tick, shooter, hit)| {
                 ServerMessage::RayResult(RayResult {
@@ -144,6 +151,7 @@ pub fn server_message() -> impl Strategy<Value = ServerMessage> {
                     window_ticks,
                     input_lead_ticks: window_ticks / 2,
                     max_rewind_ticks: window_ticks,
+                    next_seq: tick.0 / 3,
                 })
             }
         ),

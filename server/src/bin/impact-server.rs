@@ -6,6 +6,7 @@ use clap::Parser;
 use impact_protocol::{Encoding, WorldId};
 use impact_server::offline;
 use impact_server::rollback::{RollbackConfig, StalePolicy};
+use impact_server::runtime::auth::Users;
 use impact_server::runtime::{self, ServerOptions};
 use impact_server::scene::Scene;
 use impact_server::sim::world::window_ticks;
@@ -20,8 +21,8 @@ use std::time::Instant;
 #[command(version, about)]
 struct Args {
     /// Scene file (TOML; see SCENES.md).
-    #[arg(long)]
-    scene: PathBuf,
+    #[arg(long, required_unless_present = "print_acl")]
+    scene: Option<PathBuf>,
     /// Run the core with no network, as fast as it goes.
     #[arg(long)]
     offline: bool,
@@ -79,11 +80,30 @@ struct Args {
     /// No per-second status line.
     #[arg(long)]
     quiet: bool,
+    /// Users file (TOML, `[[user]] name, password, client`): turns on Zenoh user/password
+    /// authentication and access control, so each user acts, listens and appears only as its own
+    /// client. See README, "Users and access control".
+    #[arg(long)]
+    users: Option<PathBuf>,
+    /// Print the Zenoh configuration (access control and dictionary path) a zenohd router needs
+    /// to enforce `--users` at the edge, and exit.
+    #[arg(long, requires = "users")]
+    print_acl: bool,
+    /// With --print-acl: where the router's dictionary file (one `name:password` per line) is.
+    #[arg(long, default_value = "users.dict")]
+    dictionary_path: String,
 }
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let mut scene = Scene::load(&args.scene).map_err(anyhow::Error::msg)?;
+    let users = args.users.as_deref().map(Users::load).transpose()?;
+    if args.print_acl {
+        let users = users.context("--print-acl needs --users")?;
+        println!("{}", users.router_config(&args.dictionary_path));
+        return Ok(());
+    }
+    let path = args.scene.as_deref().context("--scene is required")?;
+    let mut scene = Scene::load(path).map_err(anyhow::Error::msg)?;
     if let Some(name) = &args.world {
         scene.name = WorldId::new(name.clone()).map_err(anyhow::Error::msg)?;
     }
@@ -103,7 +123,7 @@ fn main() -> Result<()> {
         cfg.window_ticks = window_ticks(ms, cfg.tick_hz);
     }
     if !args.offline {
-        return serve(scene, &args);
+        return serve(scene, &args, users);
     }
     let plan = if args.general { Plan::general(&scene.world) } else { Plan::for_world(&scene.world) };
     println!("{}", describe(&scene, &args));
@@ -164,7 +184,7 @@ fn main() -> Result<()> {
     Ok(())
 }
 
-fn serve(scene: Scene, args: &Args) -> Result<()> {
+fn serve(scene: Scene, args: &Args, users: Option<Users>) -> Result<()> {
     let plan = Plan::for_world(&scene.world);
     let mut rollback = RollbackConfig::for_world(&scene.world);
     rollback.selective = args.selective;
@@ -185,11 +205,15 @@ fn serve(scene: Scene, args: &Args) -> Result<()> {
         inputs_per_client_per_s: args.rate_limit,
         max_ticks: args.max_ticks,
         verbose: !args.quiet,
+        users,
         ..ServerOptions::default()
     };
     let world = scene.name.clone();
     let mut handle = runtime::start(scene, opts.clone())?;
     println!("listening on {} as impact/v1/{world}/...  (Ctrl-C to stop)", opts.listen.join(", "));
+    if let Some(u) = &opts.users {
+        println!("access control: {} users, default deny (user/password authentication required)", u.users.len());
+    }
     let stop = handle.stop_flag();
     ctrlc::set_handler(move || stop.store(true, std::sync::atomic::Ordering::SeqCst))
         .context("installing the Ctrl-C handler")?;
@@ -204,7 +228,7 @@ fn describe(scene: &Scene, args: &Args) -> String {
     format!(
         "world {} ({}): {} dynamic and {} static bodies{}, {} Hz, rollback window {} ticks",
         scene.name,
-        args.scene.display(),
+        args.scene.as_deref().unwrap_or(std::path::Path::new("?")).display(),
         w.bodies.len(),
         w.statics.id.len(),
         if w.statics.terrain.is_some() { ", terrain" } else { "" },

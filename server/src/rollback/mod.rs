@@ -15,6 +15,7 @@
 
 pub mod history;
 pub mod reconcile;
+pub mod replay;
 pub mod rewind;
 pub mod selective;
 
@@ -142,8 +143,8 @@ pub struct Session {
     history: History,
     future: BTreeMap<u32, Vec<TickInput>>,
     system: Vec<SystemAction>,
-    seen: BTreeSet<(ClientId, u32)>,
-    seen_by_tick: BTreeMap<u32, Vec<(ClientId, u32)>>,
+    /// Each client's accepted seqs (replay protection), until [`Session::forget_client`].
+    windows: BTreeMap<ClientId, replay::SeqWindow>,
     fresh: BTreeSet<(ClientId, u32)>,
     dirty_from: Option<Tick>,
     cfg: RollbackConfig,
@@ -172,8 +173,7 @@ impl Session {
             history: History::new(capacity),
             future: BTreeMap::new(),
             system: Vec::new(),
-            seen: BTreeSet::new(),
-            seen_by_tick: BTreeMap::new(),
+            windows: BTreeMap::new(),
             fresh: BTreeSet::new(),
             dirty_from: None,
             cfg,
@@ -296,11 +296,18 @@ impl Session {
             });
         }
         let id = (input.client, input.seq);
-        if self.seen.contains(&id) {
-            return Err(Refusal::new(
-                RejectReason::Duplicate,
-                format!("input {} of client {} was already accepted", input.seq, input.client),
-            ));
+        let window = self.windows.get(&input.client);
+        if let Err(r) = window.map_or(Ok(()), |w| w.check(input.seq)) {
+            let detail = match r {
+                replay::Replay::Seen => format!("input {} of client {} was already accepted", input.seq, input.client),
+                replay::Replay::BelowFloor { floor } => format!(
+                    "seq {} is at or below {floor}, the floor of client {}'s replay window of {} seqs",
+                    input.seq,
+                    input.client,
+                    replay::WINDOW
+                ),
+            };
+            return Err(Refusal::new(RejectReason::Duplicate, detail));
         }
         input::check(&self.world, input.client, &input.actions)
             .map_err(|(reason, detail)| Refusal::new(reason, detail))?;
@@ -320,8 +327,7 @@ impl Session {
         if tick < now {
             self.dirty_from = Some(self.dirty_from.map_or(tick, |d| d.min(tick)));
         }
-        self.seen.insert(id);
-        self.seen_by_tick.entry(tick.0).or_default().push(id);
+        self.windows.entry(input.client).or_default().accept(input.seq);
         self.fresh.insert(id);
         Ok(tick)
     }
@@ -383,16 +389,6 @@ impl Session {
                 e.status = EventStatus::Confirmed;
             }
             adv.confirmed = Some(EventBatch { tick: old.tick, revision: old.revision, events });
-            // Its inputs can never be resent usefully: forget their ids.
-            let oldest = self.oldest_accepted().0;
-            while let Some((&t, _)) = self.seen_by_tick.first_key_value() {
-                if t >= oldest {
-                    break;
-                }
-                for id in self.seen_by_tick.remove(&t).unwrap_or_default() {
-                    self.seen.remove(&id);
-                }
-            }
         }
         self.fresh.clear();
         adv
@@ -525,9 +521,20 @@ impl Session {
         self.planted_desync = true;
     }
 
-    /// Inputs remembered for duplicate detection (bounded by the window and the lead).
-    pub fn remembered_inputs(&self) -> usize {
-        self.seen.len()
+    /// Clients with a replay window (each a fixed size; one per client until forgotten).
+    pub fn replay_windows(&self) -> usize {
+        self.windows.len()
+    }
+
+    /// The lowest seq `client` may send next (0 for a client never seen).
+    pub fn next_seq(&self, client: ClientId) -> u32 {
+        self.windows.get(&client).map_or(0, replay::SeqWindow::next_seq)
+    }
+
+    /// Drops `client`'s replay window: the runtime calls it when the client's presence is over
+    /// (left, and the grace period passed). A client that returns later starts from seq 0.
+    pub fn forget_client(&mut self, client: ClientId) {
+        self.windows.remove(&client);
     }
 
     /// Ticks holding future inputs (bounded by the lead).

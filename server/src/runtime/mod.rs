@@ -17,6 +17,7 @@
 //! egress thread publishes with congestion control `Drop`, so a subscriber that stops reading
 //! costs only its own messages.
 
+pub mod auth;
 mod egress;
 mod server;
 mod session;

@@ -7,8 +7,9 @@ use crate::scene::{avatar_position, AvatarRule, Scene};
 use crate::sim::{Plan, SystemAction};
 use impact_protocol::limits::MAX_CLIENT_MESSAGE_BYTES;
 use impact_protocol::{
-    decode, encode, keys, ClientId, ClientInput, ClientMessage, CollisionEvent, Encoding, EntityId, EventBatch,
-    EventHistory, InputAck, InputReject, QueryError, RejectReason, ServerMessage, ServerStats, Tick, Welcome, WorldId,
+    decode_unchecked, encode, keys, ClientId, ClientInput, ClientMessage, CollisionEvent, Encoding, EntityId,
+    EventBatch, EventHistory, InputAck, InputReject, QueryError, RejectReason, ServerMessage, ServerStats, Tick,
+    Validate, Welcome, WorldId,
 };
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -60,6 +61,8 @@ pub struct ServerOptions {
     pub max_ticks: Option<u64>,
     /// Print a line per second to stderr.
     pub verbose: bool,
+    /// Authenticated users and access control (`--users`); `None` lets anyone in.
+    pub users: Option<super::auth::Users>,
 }
 
 impl Default for ServerOptions {
@@ -77,6 +80,7 @@ impl Default for ServerOptions {
             max_clients: 10_000,
             max_ticks: None,
             verbose: false,
+            users: None,
         }
     }
 }
@@ -250,14 +254,19 @@ fn send(tx: &SyncSender<Out>, shared: &Shared, key: String, msg: &ServerMessage,
     }
 }
 
-fn reject(client: ClientId, seq: u32, tick: Tick, reason: RejectReason, detail: String) -> ServerMessage {
+/// A reject without window bounds; `header` is the input's `(seq, tick)` when it could be read.
+fn reject(client: ClientId, header: Option<(u32, Tick)>, reason: RejectReason, detail: String) -> ServerMessage {
+    let (seq, tick) = (header.map(|h| h.0), header.map(|h| h.1));
     ServerMessage::Reject(InputReject { client, seq, tick, reason, detail, oldest_tick: None, newest_tick: None })
 }
 
 /// Starts the server on `scene` and returns at once; the tick thread runs until stopped.
 pub fn start(scene: Scene, opts: ServerOptions) -> Result<ServerHandle, RuntimeError> {
-    let config = super::zenoh_config(opts.zenoh_config.as_deref(), &opts.listen, &opts.connect)?;
+    let mut config = super::zenoh_config(opts.zenoh_config.as_deref(), &opts.listen, &opts.connect)?;
+    let dictionary = opts.users.as_ref().map(|u| u.apply(&mut config)).transpose()?;
     let zs = zenoh::open(config).wait().map_err(|e| RuntimeError::Zenoh(format!("opening the session: {e}")))?;
+    // Zenoh read the password dictionary while opening: the file need not outlive this line.
+    drop(dictionary);
     let world_id = scene.name.clone();
     let shared = Arc::new(Shared::default());
     let (egress_tx, egress_rx) = sync_channel::<Out>(opts.egress_capacity);
@@ -278,48 +287,52 @@ pub fn start(scene: Scene, opts: ServerOptions) -> Result<ServerHandle, RuntimeE
                 let tag = sample.encoding().to_string();
                 let encoding = Encoding::from_zenoh_tag(&tag).unwrap_or(default_enc);
                 let bytes = sample.payload().to_bytes();
-                let refuse = |client: ClientId, seq: u32, tick: Tick, reason: RejectReason, detail: String| {
+                let refuse = |client: ClientId, header: Option<(u32, Tick)>, reason: RejectReason, detail: String| {
                     shared.rejected_in_callbacks[reason_index(reason)].fetch_add(1, Ordering::Relaxed);
                     let key = keys::CLIENT_ACK.key(&world_of(&key), Some(client));
-                    send(&etx, &shared, key, &reject(client, seq, tick, reason, detail), encoding);
+                    send(&etx, &shared, key, &reject(client, header, reason, detail), encoding);
                 };
                 let Some(client) = from_key else {
                     return; // not a key of ours: nobody to answer
                 };
+                // Whatever fails from here on is answered with the input's own seq and tick when
+                // the payload can be read that far, so the client can tell which input it was.
+                let header = || {
+                    impact_protocol::input_header(&bytes, encoding, MAX_CLIENT_MESSAGE_BYTES).map(|(_, s, t)| (s, t))
+                };
                 if Encoding::from_zenoh_tag(&tag).is_none() && !tag.is_empty() && tag != "zenoh/bytes" {
                     return refuse(
                         client,
-                        0,
-                        Tick(0),
+                        None,
                         RejectReason::Malformed,
                         format!("unknown encoding {tag:?}: use application/msgpack or application/json"),
                     );
                 }
-                match decode::<ClientMessage>(&bytes, encoding, MAX_CLIENT_MESSAGE_BYTES) {
-                    Err(e) => refuse(client, 0, Tick(0), e.reject_reason(), e.to_string()),
-                    Ok(ClientMessage::Input(input)) => {
-                        if input.client != client {
-                            return refuse(
-                                client,
-                                input.seq,
-                                input.tick,
-                                RejectReason::NotOwner,
-                                format!("input names client {} but was sent on client {client}'s key", input.client),
-                            );
-                        }
-                        let (seq, tick) = (input.seq, input.tick);
-                        if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) =
-                            tx.try_send(Ingress { input, encoding })
-                        {
-                            refuse(
-                                client,
-                                seq,
-                                tick,
-                                RejectReason::QueueFull,
-                                "the server's ingress queue is full; resend later".into(),
-                            );
-                        }
-                    }
+                let input = match decode_unchecked::<ClientMessage>(&bytes, encoding, MAX_CLIENT_MESSAGE_BYTES) {
+                    Err(e) => return refuse(client, header(), e.reject_reason(), e.to_string()),
+                    Ok(ClientMessage::Input(input)) => input,
+                };
+                let here = Some((input.seq, input.tick));
+                if input.client != client {
+                    return refuse(
+                        client,
+                        here,
+                        RejectReason::NotOwner,
+                        format!("input names client {} but was sent on client {client}'s key", input.client),
+                    );
+                }
+                if let Err(e) = input.validate() {
+                    return refuse(client, here, e.reject_reason(), e.to_string());
+                }
+                if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) =
+                    tx.try_send(Ingress { input, encoding })
+                {
+                    refuse(
+                        client,
+                        here,
+                        RejectReason::QueueFull,
+                        "the server's ingress queue is full; resend later".into(),
+                    );
                 }
             })
             .wait()
@@ -618,6 +631,7 @@ impl TickLoop {
             .map(|(c, _)| *c)
             .collect();
         for c in leaving {
+            self.session.forget_client(c);
             if let Some(s) = self.clients.remove(&c) {
                 if let Some(entity) = s.avatar {
                     self.session.submit_system(SystemAction::Remove { entity });
@@ -634,6 +648,15 @@ impl TickLoop {
             queued += 1;
             let (client, seq, tick) = (input.client, input.seq, input.tick);
             if !self.clients.contains_key(&client) {
+                if self.clients.len() >= self.opts.max_clients {
+                    // Every client costs a little state until its grace ends: an input from yet
+                    // another id (never present) must not grow it without bound.
+                    self.count_reject(RejectReason::QueueFull);
+                    let detail = format!("the server already serves its maximum of {} clients", self.opts.max_clients);
+                    let msg = reject(client, Some((seq, tick)), RejectReason::QueueFull, detail);
+                    self.put(self.ack_key(client), &msg, encoding);
+                    continue;
+                }
                 let state = self.new_client(client, false, Some(now.0 + self.opts.grace_ticks), encoding);
                 self.clients.insert(client, state);
             }
@@ -644,8 +667,7 @@ impl TickLoop {
                 self.count_reject(RejectReason::RateLimited);
                 let msg = reject(
                     client,
-                    seq,
-                    tick,
+                    Some((seq, tick)),
                     RejectReason::RateLimited,
                     format!("more than {} inputs per second", self.opts.inputs_per_client_per_s),
                 );
@@ -677,8 +699,8 @@ impl TickLoop {
                     self.count_reject(r.reason);
                     let msg = ServerMessage::Reject(InputReject {
                         client,
-                        seq,
-                        tick,
+                        seq: Some(seq),
+                        tick: Some(tick),
                         reason: r.reason,
                         detail: r.detail,
                         oldest_tick: r.oldest_tick,
@@ -746,7 +768,7 @@ impl TickLoop {
         for s in &adv.skipped {
             self.count_reject(s.reason);
             let e = self.clients.get(&s.client).map_or(enc, |c| c.encoding);
-            self.put(self.ack_key(s.client), &reject(s.client, s.seq, adv.tick, s.reason, s.detail.clone()), e);
+            self.put(self.ack_key(s.client), &reject(s.client, Some((s.seq, s.tick)), s.reason, s.detail.clone()), e);
         }
         for (client, entity) in &adv.spawned {
             if let Some(c) = self.clients.get_mut(client) {
@@ -770,6 +792,7 @@ impl TickLoop {
             window_ticks: cfg.window_ticks,
             input_lead_ticks: self.session.config().lead_ticks,
             max_rewind_ticks: cfg.max_rewind_ticks.min(self.session.config().window_ticks),
+            next_seq: self.session.next_seq(client),
         });
         let e = self.clients.get(&client).map_or(self.opts.encoding, |c| c.encoding);
         self.put(self.ack_key(client), &msg, e);

@@ -115,6 +115,8 @@ pub struct Skipped {
     pub client: ClientId,
     /// Its sequence number.
     pub seq: u32,
+    /// The tick it was to apply at.
+    pub tick: Tick,
     /// Why.
     pub reason: RejectReason,
     /// Detail for humans.
@@ -210,7 +212,7 @@ pub fn apply(w: &mut World, inputs: &[TickInput], out: &mut TickOutput) {
     for k in order {
         let input = &inputs[k];
         if let Err((reason, detail)) = check(w, input.client, &input.actions) {
-            out.skipped.push(Skipped { client: input.client, seq: input.seq, reason, detail });
+            out.skipped.push(Skipped { client: input.client, seq: input.seq, tick: w.tick, reason, detail });
             continue;
         }
         for (index, a) in input.actions.iter().enumerate() {

@@ -25,10 +25,16 @@ pub fn server(scene: Scene, tweak: impl FnOnce(&mut ServerOptions)) -> (ServerHa
 
 /// A client session connected to `endpoint`.
 pub fn client(endpoint: &str) -> zenoh::Session {
-    let s = impact_client_sim::net::open(&[endpoint.to_string()], None).expect("client session");
+    client_as(endpoint, None).expect("client session")
+}
+
+/// A client session connected to `endpoint`, authenticated as `(user, password)` if given.
+pub fn client_as(endpoint: &str, creds: Option<(&str, &str)>) -> anyhow::Result<zenoh::Session> {
+    let creds = creds.map(|(u, p)| impact_client_sim::net::Credentials { user: u.into(), password: p.into() });
+    let s = impact_client_sim::net::open(&[endpoint.to_string()], None, creds.as_ref())?;
     // Give the link a moment to come up before declaring interest.
     std::thread::sleep(Duration::from_millis(300));
-    s
+    Ok(s)
 }
 
 /// Decoded messages published on `key`.

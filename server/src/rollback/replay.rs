@@ -1,0 +1,149 @@
+//! Replay protection: a sliding window over each client's input seqs, as DTLS (RFC 6347
+//! §4.1.2.6) and IPsec (RFC 4303 §3.4.3) keep over record numbers.
+//!
+//! A window remembers the highest seq accepted and which of the [`WINDOW`] seqs at and below it
+//! were accepted. A seq above the highest is new; one inside the window is new unless its bit is
+//! set; one at or below the floor (`highest - WINDOW`) is refused as a duplicate, because the
+//! window can no longer tell. So a seq is a nonce for as long as the window lives (the client's
+//! presence and its grace period), not just for the rollback window, and the memory is a fixed
+//! 136 bytes per client however long it stays.
+
+/// Seqs remembered below the highest accepted one (including it).
+pub const WINDOW: u32 = 1024;
+
+const WORDS: usize = (WINDOW / 64) as usize;
+
+/// Why a seq was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Replay {
+    /// This seq was accepted before.
+    Seen,
+    /// The seq is at or below the floor: older than the window remembers.
+    BelowFloor {
+        /// The highest seq not accepted for that reason (`highest - WINDOW`).
+        floor: u32,
+    },
+}
+
+/// One client's window.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct SeqWindow {
+    /// The highest seq accepted, if any.
+    highest: Option<u32>,
+    /// Bit `s % WINDOW` is set when seq `s` (within the window) was accepted.
+    bits: [u64; WORDS],
+}
+
+impl SeqWindow {
+    /// `Ok` when `seq` has not been accepted (and can still be told apart).
+    pub fn check(&self, seq: u32) -> Result<(), Replay> {
+        let Some(h) = self.highest else { return Ok(()) };
+        if seq > h {
+            return Ok(());
+        }
+        if h - seq >= WINDOW {
+            return Err(Replay::BelowFloor { floor: h - WINDOW });
+        }
+        if self.bit(seq) {
+            Err(Replay::Seen)
+        } else {
+            Ok(())
+        }
+    }
+
+    /// Records `seq` as accepted (call after [`check`](Self::check) passed).
+    pub fn accept(&mut self, seq: u32) {
+        match self.highest {
+            Some(h) if seq <= h => {}
+            Some(h) => {
+                // The seqs between the old highest and the new one enter the window unseen.
+                if seq - h >= WINDOW {
+                    self.bits = [0; WORDS];
+                } else {
+                    for s in h + 1..seq {
+                        self.set(s, false);
+                    }
+                }
+                self.highest = Some(seq);
+            }
+            None => self.highest = Some(seq),
+        }
+        self.set(seq, true);
+    }
+
+    /// The lowest seq above every accepted one: where a reconnecting client resumes.
+    pub fn next_seq(&self) -> u32 {
+        self.highest.map_or(0, |h| h.saturating_add(1))
+    }
+
+    fn bit(&self, seq: u32) -> bool {
+        let i = seq % WINDOW;
+        self.bits[(i / 64) as usize] & (1 << (i % 64)) != 0
+    }
+
+    fn set(&mut self, seq: u32, on: bool) {
+        let i = seq % WINDOW;
+        let (w, b) = ((i / 64) as usize, 1u64 << (i % 64));
+        if on {
+            self.bits[w] |= b;
+        } else {
+            self.bits[w] &= !b;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+    use std::collections::BTreeSet;
+
+    /// The model: every accepted seq in a set; below the floor is refused whether seen or not.
+    fn model(accepted: &BTreeSet<u32>, seq: u32) -> Result<(), Replay> {
+        let Some(&h) = accepted.last() else { return Ok(()) };
+        if seq <= h && h - seq >= WINDOW {
+            Err(Replay::BelowFloor { floor: h - WINDOW })
+        } else if accepted.contains(&seq) {
+            Err(Replay::Seen)
+        } else {
+            Ok(())
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn window_equals_the_set_of_accepted_seqs(
+            steps in prop::collection::vec((0u32..3000, any::<bool>()), 1..400)
+        ) {
+            let mut w = SeqWindow::default();
+            let mut accepted = BTreeSet::new();
+            for (seq, take) in steps {
+                let got = w.check(seq);
+                prop_assert_eq!(got, model(&accepted, seq), "seq {}", seq);
+                if take && got.is_ok() {
+                    w.accept(seq);
+                    accepted.insert(seq);
+                }
+                prop_assert_eq!(w.next_seq(), accepted.last().map_or(0, |h| h + 1));
+            }
+        }
+    }
+
+    #[test]
+    fn a_seq_is_refused_long_after_the_rollback_window() {
+        let mut w = SeqWindow::default();
+        for s in 0..5000 {
+            w.accept(s);
+        }
+        assert_eq!(w.check(4999), Err(Replay::Seen));
+        assert_eq!(w.check(4000), Err(Replay::Seen));
+        assert_eq!(w.check(3976), Err(Replay::Seen), "the lowest seq the window still holds");
+        assert_eq!(w.check(3975), Err(Replay::BelowFloor { floor: 3975 }), "the floor itself");
+        assert_eq!(w.check(0), Err(Replay::BelowFloor { floor: 3975 }));
+        assert_eq!(w.check(5000), Ok(()));
+        // A jump past the whole window forgets the bits it skipped.
+        w.accept(10_000);
+        assert_eq!(w.check(9_999), Ok(()));
+        assert_eq!(w.check(u32::MAX), Ok(()));
+    }
+}

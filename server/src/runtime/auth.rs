@@ -1,0 +1,300 @@
+//! Users and access control (`impact-server --users FILE`).
+//!
+//! A users file names each player's Zenoh user, password and client id. From it the server turns
+//! on Zenoh's user/password authentication (a session that cannot prove a listed name is refused
+//! before it sends a byte of data) and generates Zenoh access control with a default of deny, so
+//! that each authenticated user may only:
+//!
+//! - put its own inputs, on `impact/v1/*/input/{client}`;
+//! - declare its own presence token, on `impact/v1/*/presence/{client}`;
+//! - subscribe to its own `impact/v1/*/client/{client}/**` and receive what is published there;
+//! - subscribe to and receive the public streams ([`PUBLIC`]);
+//! - query `impact/v1/*/query/**` and receive the replies.
+//!
+//! The world segment is `*`: a user is the same client in every world of the deployment, and one
+//! set of rules serves a server with many worlds and a router in front of many servers.
+//! `[[server]]` entries are other impact servers and routers of the same deployment: they may do
+//! anything under `impact/v1/**`. The server's own session authenticates with the first of them
+//! when it connects out (to a router that demands it).
+//!
+//! Zenoh drops a denied message where it enters, silently: an impersonating put never reaches the
+//! server, so it is not answered (there is nobody trustworthy to answer).
+
+use super::server::RuntimeError;
+use impact_protocol::keys::{self, KeyPattern};
+use serde::Deserialize;
+use serde_json::{json, Value};
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+/// The keys every user may subscribe to: they carry nothing private.
+pub const PUBLIC: [KeyPattern; 4] = [keys::EVENTS, keys::CORRECTIONS, keys::CONFIRMED, keys::STATS];
+
+/// One player: a Zenoh user name and password, and the client id it is.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct User {
+    /// Zenoh user name.
+    pub name: String,
+    /// Its password.
+    pub password: String,
+    /// The client id this user acts as.
+    pub client: u32,
+}
+
+/// Another server or a router of the same deployment: trusted with every impact key.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Peer {
+    /// Zenoh user name.
+    pub name: String,
+    /// Its password.
+    pub password: String,
+}
+
+/// A parsed, checked users file.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Users {
+    /// The players.
+    #[serde(default, rename = "user")]
+    pub users: Vec<User>,
+    /// Servers and routers.
+    #[serde(default, rename = "server")]
+    pub servers: Vec<Peer>,
+}
+
+impl Users {
+    /// Reads and checks a users file.
+    pub fn load(path: &Path) -> Result<Users, RuntimeError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| RuntimeError::Config(format!("reading users file {}: {e}", path.display())))?;
+        Users::parse(&text).map_err(|e| RuntimeError::Config(format!("users file {}: {e}", path.display())))
+    }
+
+    /// Parses and checks a users file's text.
+    pub fn parse(text: &str) -> Result<Users, String> {
+        let users: Users = toml::from_str(text).map_err(|e| e.to_string())?;
+        users.check()?;
+        Ok(users)
+    }
+
+    /// Names unique and usable in Zenoh's dictionary, passwords non-empty, client ids unique.
+    fn check(&self) -> Result<(), String> {
+        if self.users.is_empty() {
+            return Err("no [[user]] entries".into());
+        }
+        let mut names = BTreeSet::new();
+        let mut clients = BTreeSet::new();
+        let creds = self
+            .users
+            .iter()
+            .map(|u| (&u.name, &u.password))
+            .chain(self.servers.iter().map(|s| (&s.name, &s.password)));
+        for (name, password) in creds {
+            if name.is_empty()
+                || name.len() > 128
+                || !name.chars().all(|c| c.is_ascii_alphanumeric() || "-_.@".contains(c))
+            {
+                return Err(format!("user name {name:?}: 1 to 128 characters of A-Z a-z 0-9 - _ . @"));
+            }
+            if password.is_empty() || password.trim() != password || password.contains(['\n', '\r']) {
+                return Err(format!(
+                    "user {name:?}: the password must be non-empty, one line, without surrounding spaces"
+                ));
+            }
+            if !names.insert(name.as_str()) {
+                return Err(format!("user name {name:?} appears twice"));
+            }
+        }
+        for u in &self.users {
+            if !clients.insert(u.client) {
+                return Err(format!("client {} belongs to two users", u.client));
+            }
+        }
+        Ok(())
+    }
+
+    /// The user that is `client`, if any.
+    pub fn for_client(&self, client: u32) -> Option<&User> {
+        self.users.iter().find(|u| u.client == client)
+    }
+
+    /// Zenoh's user/password dictionary: one `name:password` line each.
+    pub fn dictionary(&self) -> String {
+        let users = self.users.iter().map(|u| (&u.name, &u.password));
+        users.chain(self.servers.iter().map(|s| (&s.name, &s.password))).map(|(n, p)| format!("{n}:{p}\n")).collect()
+    }
+
+    /// The `access_control` section of a Zenoh configuration enforcing the rules above. Four
+    /// rules, a subject and a policy per user, plus six shared rules (and two for `[[server]]`s).
+    pub fn acl(&self) -> Value {
+        let all = |p: KeyPattern| p.any_world();
+        let own = |p: KeyPattern, c: u32| p.pattern.replace("{world}", "*").replace("{client}", &c.to_string());
+        let client_tree = |c: u32| format!("impact/{}/*/client/{c}/**", keys::VERSION);
+        let rule = |id: String, keys: Vec<String>, messages: &[&str], flow: &str| json!({"id": id, "key_exprs": keys, "messages": messages, "flows": [flow], "permission": "allow"});
+        let public: Vec<String> = PUBLIC.iter().map(|p| all(*p)).collect();
+        let queries = vec![format!("impact/{}/*/query/**", keys::VERSION)];
+        let everything = vec![format!("impact/{}/**", keys::VERSION)];
+        let every_message = [
+            "put",
+            "delete",
+            "declare_subscriber",
+            "query",
+            "declare_queryable",
+            "reply",
+            "liveliness_token",
+            "declare_liveliness_subscriber",
+            "liveliness_query",
+        ];
+        let mut rules = vec![
+            rule("public-subscribe".into(), public.clone(), &["declare_subscriber"], "ingress"),
+            rule("public-receive".into(), public, &["put"], "egress"),
+            rule("query".into(), queries.clone(), &["query"], "ingress"),
+            rule("query-reply".into(), queries.clone(), &["reply"], "egress"),
+            // The server's own declarations must reach the clients, or their puts and queries
+            // find no route: that the server subscribes to inputs and answers queries is public.
+            rule("server-inputs".into(), vec![all(keys::INPUT)], &["declare_subscriber"], "egress"),
+            rule("server-queries".into(), queries, &["declare_queryable"], "egress"),
+            rule("peer-in".into(), everything.clone(), &every_message, "ingress"),
+            rule("peer-out".into(), everything, &every_message, "egress"),
+        ];
+        let shared = ["public-subscribe", "public-receive", "query", "query-reply", "server-inputs", "server-queries"];
+        let mut subjects = Vec::new();
+        let mut policies = Vec::new();
+        for u in &self.users {
+            let c = u.client;
+            let id = |what: &str| format!("client-{c}-{what}");
+            rules.push(rule(id("input"), vec![own(keys::INPUT, c)], &["put"], "ingress"));
+            rules.push(rule(id("presence"), vec![own(keys::PRESENCE, c)], &["liveliness_token"], "ingress"));
+            rules.push(rule(id("subscribe"), vec![client_tree(c)], &["declare_subscriber"], "ingress"));
+            rules.push(rule(id("receive"), vec![client_tree(c)], &["put"], "egress"));
+            subjects.push(json!({"id": format!("user-{}", u.name), "usernames": [u.name]}));
+            let mut own_rules: Vec<String> = ["input", "presence", "subscribe", "receive"].map(id).to_vec();
+            own_rules.extend(shared.iter().map(|s| s.to_string()));
+            policies.push(json!({"rules": own_rules, "subjects": [format!("user-{}", u.name)]}));
+        }
+        if !self.servers.is_empty() {
+            let names: Vec<&str> = self.servers.iter().map(|s| s.name.as_str()).collect();
+            subjects.push(json!({"id": "servers", "usernames": names}));
+            policies.push(json!({"rules": ["peer-in", "peer-out"], "subjects": ["servers"]}));
+        } else {
+            rules.retain(|r| !r["id"].as_str().is_some_and(|id| id.starts_with("peer-")));
+        }
+        json!({
+            "enabled": true,
+            "default_permission": "deny",
+            "rules": rules,
+            "subjects": subjects,
+            "policies": policies,
+        })
+    }
+
+    /// A Zenoh configuration fragment for a router in front of impact servers: the ACL above and
+    /// the dictionary's path (the dictionary itself is [`Users::dictionary`], written beside it).
+    pub fn router_config(&self, dictionary_path: &str) -> String {
+        let cfg = json!({
+            "transport": {"auth": {"usrpwd": {"dictionary_file": dictionary_path}}},
+            "access_control": self.acl(),
+        });
+        serde_json::to_string_pretty(&cfg).unwrap_or_default()
+    }
+
+    /// Turns on authentication and the ACL in `config`, with the dictionary written to a file only
+    /// this process's user can read (removed when the returned guard drops).
+    pub fn apply(&self, config: &mut zenoh::Config) -> Result<Dictionary, RuntimeError> {
+        let dict = Dictionary::write(&self.dictionary())?;
+        let err = |what: &str, e: zenoh::Error| RuntimeError::Config(format!("{what}: {e}"));
+        let path = serde_json::to_string(&dict.path.to_string_lossy()).unwrap_or_default();
+        config.insert_json5("transport/auth/usrpwd/dictionary_file", &path).map_err(|e| err("dictionary", e))?;
+        if let Some(me) = self.servers.first() {
+            let q = |s: &str| serde_json::to_string(s).unwrap_or_default();
+            config.insert_json5("transport/auth/usrpwd/user", &q(&me.name)).map_err(|e| err("user", e))?;
+            config.insert_json5("transport/auth/usrpwd/password", &q(&me.password)).map_err(|e| err("password", e))?;
+        }
+        config.insert_json5("access_control", &self.acl().to_string()).map_err(|e| err("access control", e))?;
+        Ok(dict)
+    }
+}
+
+/// The dictionary file Zenoh reads at session open; removed on drop.
+#[derive(Debug)]
+pub struct Dictionary {
+    path: PathBuf,
+}
+
+impl Dictionary {
+    fn write(text: &str) -> Result<Dictionary, RuntimeError> {
+        use std::io::Write;
+        use std::os::unix::fs::OpenOptionsExt;
+        let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
+        let path = std::env::temp_dir().join(format!("impact-users-{}-{nanos}.dict", std::process::id()));
+        let mut f =
+            std::fs::OpenOptions::new().write(true).create_new(true).mode(0o600).open(&path).map_err(|e| {
+                RuntimeError::Config(format!("writing the password dictionary {}: {e}", path.display()))
+            })?;
+        f.write_all(text.as_bytes())
+            .map_err(|e| RuntimeError::Config(format!("writing the password dictionary {}: {e}", path.display())))?;
+        Ok(Dictionary { path })
+    }
+}
+
+impl Drop for Dictionary {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// Sets a client's credentials in its Zenoh configuration.
+pub fn client_credentials(config: &mut zenoh::Config, user: &str, password: &str) -> Result<(), RuntimeError> {
+    let q = |s: &str| serde_json::to_string(s).unwrap_or_default();
+    let err = |e: zenoh::Error| RuntimeError::Config(format!("credentials: {e}"));
+    config.insert_json5("transport/auth/usrpwd/user", &q(user)).map_err(err)?;
+    config.insert_json5("transport/auth/usrpwd/password", &q(password)).map_err(err)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const FILE: &str = r#"
+        [[user]]
+        name = "alice"
+        password = "correct horse"
+        client = 1
+        [[user]]
+        name = "bob"
+        password = "battery:staple"
+        client = 2
+    "#;
+
+    #[test]
+    fn users_file_is_checked() {
+        let u = Users::parse(FILE).unwrap();
+        assert_eq!(u.for_client(2).map(|u| u.name.as_str()), Some("bob"));
+        assert_eq!(u.dictionary(), "alice:correct horse\nbob:battery:staple\n");
+        let twice = FILE.replace("client = 2", "client = 1");
+        assert!(Users::parse(&twice).unwrap_err().contains("client 1"));
+        assert!(Users::parse(&FILE.replace("\"bob\"", "\"a:b\"")).is_err());
+        assert!(Users::parse(&FILE.replace("\"battery:staple\"", "\"\"")).is_err());
+        assert!(Users::parse(&FILE.replace("\"bob\"", "\"alice\"")).is_err());
+        assert!(Users::parse("").is_err());
+    }
+
+    #[test]
+    fn the_generated_acl_is_a_valid_zenoh_configuration() {
+        let u = Users::parse(&format!("{FILE}\n[[server]]\nname = \"edge\"\npassword = \"p\"\n")).unwrap();
+        let mut c = zenoh::Config::default();
+        let dict = u.apply(&mut c).expect("zenoh accepts the generated section");
+        assert!(dict.path.exists());
+        let acl = u.acl();
+        assert_eq!(acl["default_permission"], "deny");
+        assert_eq!(acl["rules"].as_array().unwrap().len(), 8 + 4 * 2);
+        assert_eq!(acl["policies"].as_array().unwrap().len(), 3);
+        let path = dict.path.clone();
+        drop(dict);
+        assert!(!path.exists(), "the dictionary is removed");
+        let router: serde_json::Value = serde_json::from_str(&u.router_config("/etc/impact/users.dict")).unwrap();
+        assert_eq!(router["access_control"], acl);
+    }
+}
