@@ -3,6 +3,7 @@
 //! the same scene, so ratios hold on a noisy shared machine where absolute times do not.
 
 mod accuracy;
+mod auth;
 mod hitscan;
 mod kernels;
 mod plan;
@@ -48,6 +49,8 @@ enum Suite {
     Stability(stability::StabilityArgs),
     /// Raw Zenoh pub/sub throughput beside the event rate one subscriber receives from impact.
     Zenoh(zenoh_rate::ZenohArgs),
+    /// What `--users` costs: ACL size, session open, client connect, input round trip.
+    Auth(auth::AuthArgs),
 }
 
 fn main() -> Result<()> {
@@ -56,6 +59,7 @@ fn main() -> Result<()> {
         Suite::Plan(a) => plan::run(&a),
         Suite::Rollback(a) => rollback::run(&a),
         Suite::Zenoh(a) => zenoh_rate::run(&a),
+        Suite::Auth(a) => auth::run(&a),
         Suite::Accuracy(a) => accuracy::run(&a),
         Suite::Kernels(a) => kernels::run(&a),
         Suite::Stability(a) => stability::run(&a),
