@@ -89,6 +89,17 @@ fn a_user_acts_listens_and_appears_only_as_itself() {
     assert_eq!(answer(&alice_ack, 3, Duration::from_secs(5)), Some(true));
     assert_eq!(answer(&alice_ack, 2, Duration::from_millis(500)), None, "the forged input reached the server");
 
+    // Replay: seq 1, accepted seconds ago (its tick long confirmed), sent again with a fresh tick
+    // by alice herself is a duplicate; the window outlives the rollback window.
+    let t = now(&alice);
+    send(&alice, &world, &walk(alice_id, 1, Tick(t.0 + 2), avatar), Encoding::MsgPack);
+    let replayed = alice_ack.wait_for(Duration::from_secs(5), |m| match m {
+        ServerMessage::Reject(r) if r.seq == Some(1) => Some(r.reason),
+        ServerMessage::Ack(a) if a.seq == 1 => panic!("a replayed seq was accepted: {a:?}"),
+        _ => None,
+    });
+    assert_eq!(replayed, Some(impact_protocol::RejectReason::Duplicate));
+
     // Eavesdropping: alice received her welcome and acks; mallory received none of them.
     let anything = |inbox: &Inbox| inbox.wait_for(Duration::from_millis(500), |m| Some(format!("{m:?}")));
     assert_eq!(anything(&stolen_ack), None, "mallory read alice's ack key");
