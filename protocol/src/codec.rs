@@ -152,14 +152,25 @@ fn decode_prefix<T: DeserializeOwned>(
 /// a malformed input is still answered with its own `seq` and `tick`. `None` when even these
 /// cannot be read (too large, truncated, not a map). Bytes after the message are ignored here.
 pub fn input_header(bytes: &[u8], encoding: Encoding, max_bytes: usize) -> Option<(ClientId, u32, Tick)> {
+    // The same tagging as `ClientMessage`, so whatever form decodes as an input (a map, or
+    // serde's positional array) also yields its header; the fields after `tick` are skipped.
+    #[derive(serde::Deserialize)]
+    #[serde(tag = "type", rename_all = "snake_case")]
+    enum Message {
+        Input(Header),
+    }
     #[derive(serde::Deserialize)]
     struct Header {
-        #[serde(rename = "type")]
-        kind: String,
         client: ClientId,
         seq: u32,
         tick: Tick,
+        #[serde(default)]
+        #[allow(dead_code)]
+        view_tick: serde::de::IgnoredAny,
+        #[serde(default)]
+        #[allow(dead_code)]
+        actions: serde::de::IgnoredAny,
     }
-    let (h, _): (Header, usize) = decode_prefix(bytes, encoding, max_bytes).ok()?;
-    (h.kind == "input").then_some((h.client, h.seq, h.tick))
+    let (Message::Input(h), _): (Message, usize) = decode_prefix(bytes, encoding, max_bytes).ok()?;
+    Some((h.client, h.seq, h.tick))
 }

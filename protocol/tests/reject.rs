@@ -180,3 +180,38 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn a_refused_input_is_matched_by_its_header() {
+    // Values out of range: the structure decodes, so the header does.
+    let mut too_many = input(vec![Action::Despawn { entity: EntityId(1) }; MAX_ACTIONS_PER_INPUT + 1]);
+    let ClientMessage::Input(i) = &mut too_many;
+    i.seq = 77;
+    let bytes = rmp_serde::to_vec_named(&too_many).unwrap();
+    let err = decode_client(&bytes, Encoding::MsgPack).unwrap_err();
+    assert_eq!(err.to_string(), "input carries 17 actions, at most 16 are allowed");
+    assert_eq!(input_header(&bytes, Encoding::MsgPack, MAX_CLIENT_MESSAGE_BYTES), Some((ClientId(1), 77, Tick(5))));
+    // Malformed further in: an action type that does not exist.
+    let json = br#"{"type":"input","client":3,"seq":8,"tick":40,"actions":[{"type":"teleport"}]}"#;
+    assert!(decode_client(json, Encoding::Json).is_err());
+    assert_eq!(input_header(json, Encoding::Json, MAX_CLIENT_MESSAGE_BYTES), Some((ClientId(3), 8, Tick(40))));
+    // Unreadable: no header, the documented nil placeholder.
+    assert_eq!(input_header(&bytes[..10], Encoding::MsgPack, MAX_CLIENT_MESSAGE_BYTES), None);
+    // Found by fuzzing: serde also reads a positional array as an input; its header must be
+    // readable the same way (it was not: the header decoder wanted a map with a string tag).
+    let positional = [0x96, 0x00, 0x00, 0x00, 0x00, 0x20, 0x90];
+    let decoded: ClientMessage = decode_unchecked(&positional, Encoding::MsgPack, MAX_CLIENT_MESSAGE_BYTES).unwrap();
+    let ClientMessage::Input(d) = decoded;
+    assert_eq!(input_header(&positional, Encoding::MsgPack, MAX_CLIENT_MESSAGE_BYTES), Some((d.client, d.seq, d.tick)));
+}
+
+proptest! {
+    #[test]
+    fn every_decodable_input_has_its_header(msg in strategies::client_message()) {
+        for enc in [Encoding::MsgPack, Encoding::Json] {
+            let bytes = encode(&msg, enc).unwrap();
+            let ClientMessage::Input(i) = &msg;
+            prop_assert_eq!(input_header(&bytes, enc, MAX_CLIENT_MESSAGE_BYTES), Some((i.client, i.seq, i.tick)));
+        }
+    }
+}

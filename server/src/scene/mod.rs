@@ -542,6 +542,9 @@ mod tests {
 
         let e = err("[world]\nname = \"a\"\nmax_bodies = 10\n[[class]]\nname = \"ball\"\n[[scatter]]\nclass = \"ball\"\nshape = { type = \"sphere\", radius_m = 0.5 }\ncount = 11\nmin = [0,0,0]\nmax = [100,100,100]\n");
         assert_eq!(e.entry, "world.max_bodies");
+        // Found by fuzzing: a lattice of more than 2^64 cells wrapped the index arithmetic.
+        let e = err("[world]\nname = \"a\"\n[[class]]\nname = \"ball\"\n[[scatter]]\nclass = \"ball\"\nshape = { type = \"sphere\", radius_m = 1e-3 }\ncount = 1\nmin = [-1e30,-1e30,-1e30]\nmax = [1e30,1e30,1e30]\n");
+        assert!(e.entry.starts_with("scatter[0]") && e.detail.contains("too many"), "{e}");
         assert!(Scene::load(Path::new("/nonexistent/scene.toml")).unwrap_err().entry == "file");
     }
 

@@ -51,7 +51,14 @@ pub fn scatter(s: &ScatterDef, shape: &Shape) -> Result<Vec<(DVec3, DVec3)>, Str
     let cell = 2.0 * r * 1.05;
     let size = max - min;
     let dims = [0, 1, 2].map(|k| ((size[k] / cell).floor() as u64).max(1));
-    let cells = dims.iter().try_fold(1u64, |acc, d| acc.checked_mul(*d)).unwrap_or(u64::MAX);
+    // A lattice whose cell count overflows u64 would wrap the cell -> index arithmetic below
+    // (found by fuzzing the scene loader): no scene needs one.
+    let cells = dims.iter().try_fold(1u64, |acc, d| acc.checked_mul(*d)).ok_or_else(|| {
+        format!(
+            "the region is {} x {} x {} cells of {cell} m: too many; shrink it or scatter larger bodies",
+            dims[0], dims[1], dims[2]
+        )
+    })?;
     let count = u64::from(s.count);
     if count > cells {
         return Err(format!(
