@@ -20,7 +20,7 @@
 //! Zenoh drops a denied message where it enters, silently: an impersonating put never reaches the
 //! server, so it is not answered (there is nobody trustworthy to answer).
 
-use super::server::RuntimeError;
+use super::error::RuntimeError;
 use impact_protocol::keys::{self, KeyPattern};
 use serde::Deserialize;
 use serde_json::{json, Value};

@@ -19,9 +19,11 @@
 
 pub mod auth;
 mod egress;
+mod error;
 mod server;
 mod session;
 mod timing;
 
-pub use server::{start, RuntimeError, ServerHandle, ServerOptions, Summary};
+pub use error::RuntimeError;
+pub use server::{start, ServerHandle, ServerOptions, Summary};
 pub use session::zenoh_config;

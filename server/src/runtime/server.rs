@@ -1,6 +1,7 @@
 //! The server: Zenoh declarations, the tick thread, and shutdown.
 
 use super::egress::{self, Out};
+use super::error::RuntimeError;
 use super::timing::LeadEstimator;
 use crate::rollback::{RollbackConfig, Session};
 use crate::scene::{avatar_position, AvatarRule, Scene};
@@ -19,20 +20,6 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use zenoh::Wait;
-
-/// Why the server could not start or run.
-#[derive(Debug, thiserror::Error)]
-pub enum RuntimeError {
-    /// The Zenoh configuration is invalid.
-    #[error("zenoh configuration: {0}")]
-    Config(String),
-    /// Zenoh refused a session or a declaration.
-    #[error("zenoh: {0}")]
-    Zenoh(String),
-    /// A thread could not be started.
-    #[error("thread: {0}")]
-    Thread(String),
-}
 
 /// How to run the server.
 #[derive(Clone, Debug)]

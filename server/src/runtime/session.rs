@@ -1,7 +1,7 @@
 //! Building the Zenoh configuration: embedded peer listening on loopback by default, a config
 //! file for anything else (joining a router, other transports, TLS).
 
-use super::server::RuntimeError;
+use super::error::RuntimeError;
 use std::path::Path;
 
 /// The Zenoh configuration for a process of impact: from `file` if given (used as is, except
