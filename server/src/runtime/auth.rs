@@ -14,8 +14,12 @@
 //! The world segment is `*`: a user is the same client in every world of the deployment, and one
 //! set of rules serves a server with many worlds and a router in front of many servers.
 //! `[[server]]` entries are other impact servers and routers of the same deployment: they may do
-//! anything under `impact/v1/**`. The server's own session authenticates with the first of them
-//! when it connects out (to a router that demands it).
+//! anything under `impact/v1/**`. In a router's configuration (`--print-acl`) they are the
+//! servers behind it, which authenticate with the credentials of their own Zenoh configuration.
+//!
+//! Enforcement is on the session that accepts the connection. A server that connects out to a
+//! router cannot also enforce: the router's link carries no user name, so a default-deny ACL
+//! would cut it off. Such a server runs without `--users`, behind a router that enforces.
 //!
 //! Zenoh drops a denied message where it enters, silently: an impersonating put never reaches the
 //! server, so it is not answered (there is nobody trustworthy to answer).
@@ -203,15 +207,28 @@ impl Users {
     /// Turns on authentication and the ACL in `config`, with the dictionary written to a file only
     /// this process's user can read (removed when the returned guard drops).
     pub fn apply(&self, config: &mut zenoh::Config) -> Result<Dictionary, RuntimeError> {
+        // Endpoints are a list, or a list per mode: any string in there is an endpoint.
+        fn any_endpoint(v: &Value) -> bool {
+            match v {
+                Value::String(_) => true,
+                Value::Array(a) => a.iter().any(any_endpoint),
+                Value::Object(o) => o.values().any(any_endpoint),
+                _ => false,
+            }
+        }
+        let connect = config.get_json("connect/endpoints").unwrap_or_default();
+        if serde_json::from_str::<Value>(&connect).is_ok_and(|v| any_endpoint(&v)) {
+            return Err(RuntimeError::Config(format!(
+                "--users enforces access on the connections this server accepts, and would also cut off \
+                 the router it connects to ({connect}: a router's link has no user name). Enforce at the \
+                 router instead (`impact-server --users FILE --print-acl` prints its configuration) and run \
+                 this server behind it without --users"
+            )));
+        }
         let dict = Dictionary::write(&self.dictionary())?;
         let err = |what: &str, e: zenoh::Error| RuntimeError::Config(format!("{what}: {e}"));
         let path = serde_json::to_string(&dict.path.to_string_lossy()).unwrap_or_default();
         config.insert_json5("transport/auth/usrpwd/dictionary_file", &path).map_err(|e| err("dictionary", e))?;
-        if let Some(me) = self.servers.first() {
-            let q = |s: &str| serde_json::to_string(s).unwrap_or_default();
-            config.insert_json5("transport/auth/usrpwd/user", &q(&me.name)).map_err(|e| err("user", e))?;
-            config.insert_json5("transport/auth/usrpwd/password", &q(&me.password)).map_err(|e| err("password", e))?;
-        }
         config.insert_json5("access_control", &self.acl().to_string()).map_err(|e| err("access control", e))?;
         Ok(dict)
     }
@@ -279,6 +296,15 @@ mod tests {
         assert!(Users::parse(&FILE.replace("\"battery:staple\"", "\"\"")).is_err());
         assert!(Users::parse(&FILE.replace("\"bob\"", "\"alice\"")).is_err());
         assert!(Users::parse("").is_err());
+    }
+
+    #[test]
+    fn a_server_that_connects_out_cannot_enforce() {
+        let u = Users::parse(FILE).unwrap();
+        let mut c = zenoh::Config::default();
+        c.insert_json5("connect/endpoints", r#"["tcp/127.0.0.1:7447"]"#).unwrap();
+        let e = u.apply(&mut c).unwrap_err().to_string();
+        assert!(e.contains("--print-acl"), "{e}");
     }
 
     #[test]
