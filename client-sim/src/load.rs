@@ -224,6 +224,19 @@ impl Client {
         Some(Tick(tick.0 + ((now - at).as_secs_f64() * f64::from(hz)) as u32))
     }
 
+    /// A `future` reject: the input's `tick` was past `newest`, the newest the server accepted.
+    /// The lead drops at once by the excess and one tick more. Without this a client whose lead
+    /// was raised by a delay spike (a server stall) overshoots once the delay falls back, every
+    /// input is refused, and no ack ever comes to lower it (the soak found 31 % of inputs refused
+    /// that way); the next acks then bring the recommendation back as the spike ages out.
+    fn back_off(&mut self, tick: Tick, newest: Tick) {
+        let excess = f64::from(tick.0.saturating_sub(newest.0)) + 1.0;
+        if let Some(lead) = self.lead.as_mut() {
+            *lead = (*lead - excess).max(0.0);
+            self.lead_target = self.lead_target.min(*lead);
+        }
+    }
+
     /// An ack recommended `lead` ticks: the first sets the lead outright, later ones are reached
     /// by time dilation in [`Client::stamp`].
     fn recommend(&mut self, lead: u32) {
@@ -487,6 +500,9 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
                             } else {
                                 r.answers_unexpected += 1;
                             }
+                            if let (RejectReason::Future, Some(t), Some(n)) = (j.reason, j.tick, j.newest_tick) {
+                                c.back_off(t, n);
+                            }
                             *r.rejects.entry(j.reason.name().to_string()).or_insert(0) += 1;
                         }
                         ServerMessage::Events(b) => {
@@ -681,6 +697,25 @@ mod tests {
         assert!(c.observe(Tick(138), now));
         assert_eq!(c.tick_estimate(now), Some(Tick(138)));
         assert_eq!(c.tick_estimate(now + Duration::from_millis(500)), Some(Tick(170)));
+    }
+
+    /// A lead raised by a delay spike overshoots once the delay is back: the `future` reject
+    /// lowers it at once, so the next input is accepted without waiting for an ack.
+    #[test]
+    fn a_future_reject_lowers_the_lead_at_once() {
+        let t0 = Instant::now();
+        let mut c = client(Tick(100), t0);
+        c.recommend(21); // a stall made the round trip look like 20 ticks
+        let (tick, view) = c.stamp(Timing::Ahead, t0).unwrap();
+        assert_eq!((tick, view), (Tick(121), Tick(100)));
+        // The server is at 110 when it arrives and accepts up to 118: 3 ticks too far.
+        c.back_off(tick, Tick(118));
+        let (tick, _) = c.stamp(Timing::Ahead, t0).unwrap();
+        assert_eq!(tick, Tick(117), "lead 21 - (3 + 1)");
+        // An ack recommending the old lead again is followed only by dilation, not a jump.
+        c.recommend(21);
+        let (tick, _) = c.stamp(Timing::Ahead, t0 + Duration::from_millis(100)).unwrap();
+        assert!(tick.0 <= 106 + 17 + 1, "{tick:?}");
     }
 
     /// Drift under the resync bound is followed within a window when every observation agrees,

@@ -279,6 +279,17 @@ impl Builder {
             None => None,
             Some(t) => {
                 let class = self.class(&classes, &t.class, "terrain.class")?;
+                let samples = match (&t.heights, &t.hills) {
+                    (Some(h), None) => h.iter().map(|r| r.len() as u64).sum::<u64>(),
+                    (None, Some(h)) => u64::from(h.nx.max(2)) * u64::from(h.nz.max(2)),
+                    _ => 0,
+                };
+                if samples > MAX_TERRAIN_SAMPLES {
+                    return Err(self.err(
+                        "terrain",
+                        format!("{samples} height samples, at most {MAX_TERRAIN_SAMPLES} (2048 x 2048)"),
+                    ));
+                }
                 let rows = match (&t.heights, &t.hills) {
                     (Some(h), None) => h.clone(),
                     (None, Some(h)) => hills(h),
@@ -487,6 +498,10 @@ fn rule_of(
     })
 }
 
+/// Most height samples a terrain may have (32 MiB of heights): the fuzzer's `nz = 222222221`
+/// asked for 11 G samples, and the loader tried to build them.
+pub const MAX_TERRAIN_SAMPLES: u64 = 2048 * 2048;
+
 fn hills(h: &HillsDef) -> Vec<Vec<f64>> {
     let tau = std::f64::consts::TAU;
     (0..h.nz.max(2))
@@ -545,6 +560,10 @@ mod tests {
         // Found by fuzzing: a lattice of more than 2^64 cells wrapped the index arithmetic.
         let e = err("[world]\nname = \"a\"\n[[class]]\nname = \"ball\"\n[[scatter]]\nclass = \"ball\"\nshape = { type = \"sphere\", radius_m = 1e-3 }\ncount = 1\nmin = [-1e30,-1e30,-1e30]\nmax = [1e30,1e30,1e30]\n");
         assert!(e.entry.starts_with("scatter[0]") && e.detail.contains("too many"), "{e}");
+        // Found by fuzzing: hills of 50 x 222,222,221 samples were generated (for a minute, then
+        // out of memory) instead of refused.
+        let e = err("[world]\nname = \"a\"\n[[class]]\nname = \"g\"\nstatic = true\n[terrain]\nclass = \"g\"\norigin = [0,0,0]\ncell_m = [1,1]\nhills = { nx = 50, nz = 222222221, amplitude_m = 1.0, wavelength_m = 10.0 }\n");
+        assert!(e.entry == "terrain" && e.detail.contains("at most"), "{e}");
         assert!(Scene::load(Path::new("/nonexistent/scene.toml")).unwrap_err().entry == "file");
     }
 
