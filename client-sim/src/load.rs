@@ -150,7 +150,8 @@ struct Client {
     drift: Option<(Instant, i64, i64)>,
     seq: u32,
     next_action: Instant,
-    sent: BTreeMap<u32, Instant>,
+    /// Inputs in flight: when each was sent, and the view tick it carried.
+    sent: BTreeMap<u32, (Instant, Option<Tick>)>,
     /// Answers owed by the server, per seq: one per delivery (two for a duplicated input).
     owed: BTreeMap<u32, u32>,
     /// Seqs acked, kept only while duplicates are injected: a second ack is a replay accepted.
@@ -224,15 +225,23 @@ impl Client {
         Some(Tick(tick.0 + ((now - at).as_secs_f64() * f64::from(hz)) as u32))
     }
 
-    /// A `future` reject: the input's `tick` was past `newest`, the newest the server accepted.
-    /// The lead drops at once by the excess and one tick more. Without this a client whose lead
-    /// was raised by a delay spike (a server stall) overshoots once the delay falls back, every
-    /// input is refused, and no ack ever comes to lower it (the soak found 31 % of inputs refused
-    /// that way); the next acks then bring the recommendation back as the spike ages out.
-    fn back_off(&mut self, tick: Tick, newest: Tick) {
-        let excess = f64::from(tick.0.saturating_sub(newest.0)) + 1.0;
+    /// A `future` reject of an input stamped `tick` at `view`: at its arrival the server accepted
+    /// ticks up to `newest`, so the lead it carried (`tick - view`) was too much by the excess.
+    /// The lead drops at once to one tick under what would have fitted (a burst of such rejects
+    /// lowers it once, not once each). Without this a client whose lead was raised by a delay
+    /// spike overshoots once the delay falls back, every input is refused, and no ack ever comes
+    /// to lower it (soak 2 refused 31 % of inputs that way); the next acks bring the
+    /// recommendation back as the spike ages out. An excess beyond [`RESYNC_TICKS`] is not the
+    /// lead's fault but the server's tick jumping back (it dropped a backlog after a stall): the
+    /// clock's resync corrects that, and lowering the lead too would make the next inputs late.
+    fn back_off(&mut self, tick: Tick, view: Tick, newest: Tick) {
+        let excess = tick.0.saturating_sub(newest.0);
+        if excess > RESYNC_TICKS {
+            return;
+        }
+        let most = f64::from(tick.0.saturating_sub(view.0)) - f64::from(excess) - 1.0;
         if let Some(lead) = self.lead.as_mut() {
-            *lead = (*lead - excess).max(0.0);
+            *lead = lead.min(most.max(0.0));
             self.lead_target = self.lead_target.min(*lead);
         }
     }
@@ -484,14 +493,19 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
                             if cfg.faults.duplicate > 0.0 && !c.acked.insert(a.seq) {
                                 r.answers_unexpected += 1; // a duplicate delivery was accepted
                             }
-                            if let Some(sent) = c.sent.remove(&a.seq) {
+                            if let Some((sent, _)) = c.sent.remove(&a.seq) {
                                 r.acks += 1;
                                 let _ = latency.record((now - sent).as_micros().max(1) as u64);
                             }
                         }
                         ServerMessage::Reject(j) => {
                             if let Some(seq) = j.seq {
-                                c.sent.remove(&seq);
+                                let view = c.sent.remove(&seq).and_then(|(_, v)| v);
+                                if let (RejectReason::Future, Some(t), Some(v), Some(n)) =
+                                    (j.reason, j.tick, view, j.newest_tick)
+                                {
+                                    c.back_off(t, v, n);
+                                }
                                 // An accepted input whose entity went away before its tick was
                                 // re-simulated is told so by a second message (PROTOCOL.md).
                                 let after_ack =
@@ -499,9 +513,6 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
                                 r.answers_unexpected += u64::from(!c.answered(seq) && !after_ack);
                             } else {
                                 r.answers_unexpected += 1;
-                            }
-                            if let (RejectReason::Future, Some(t), Some(n)) = (j.reason, j.tick, j.newest_tick) {
-                                c.back_off(t, n);
                             }
                             *r.rejects.entry(j.reason.name().to_string()).or_insert(0) += 1;
                         }
@@ -534,12 +545,12 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
                 }
                 c.next_action += period;
                 if let Some(input) = act(c, &mut rng, cfg.timing, now) {
-                    let seq = input.seq;
+                    let (seq, view) = (input.seq, input.view_tick);
                     if let Ok(bytes) = impact_protocol::encode(&ClientMessage::Input(input), cfg.encoding) {
                         r.inputs_sent += 1;
                         let twice = rng.unit() < cfg.faults.duplicate;
                         if up.send(now, &cfg.uplink, &mut rng, (k, seq, bytes.clone())) {
-                            c.sent.insert(seq, now);
+                            c.sent.insert(seq, (now, view));
                             if twice && up.send(now, &Link { loss: 0.0, ..cfg.uplink }, &mut rng, (k, seq, bytes)) {
                                 r.inputs_duplicated += 1;
                             }
@@ -708,10 +719,16 @@ mod tests {
         c.recommend(21); // a stall made the round trip look like 20 ticks
         let (tick, view) = c.stamp(Timing::Ahead, t0).unwrap();
         assert_eq!((tick, view), (Tick(121), Tick(100)));
-        // The server is at 110 when it arrives and accepts up to 118: 3 ticks too far.
-        c.back_off(tick, Tick(118));
+        // The server is at 110 when it arrives and accepts up to 118: a lead of 18 was the most.
+        c.back_off(tick, view, Tick(118));
         let (tick, _) = c.stamp(Timing::Ahead, t0).unwrap();
-        assert_eq!(tick, Tick(117), "lead 21 - (3 + 1)");
+        assert_eq!(tick, Tick(117), "lead 18 - 1");
+        // The rest of the burst (inputs sent before the first reject came back) lowers it no more.
+        c.back_off(Tick(122), Tick(101), Tick(119));
+        assert_eq!(c.stamp(Timing::Ahead, t0).unwrap().0, Tick(117));
+        // An excess past the resync bound is the server's tick jumping back, not the lead.
+        c.back_off(Tick(140), Tick(120), Tick(125));
+        assert_eq!(c.stamp(Timing::Ahead, t0).unwrap().0, Tick(117));
         // An ack recommending the old lead again is followed only by dilation, not a jump.
         c.recommend(21);
         let (tick, _) = c.stamp(Timing::Ahead, t0 + Duration::from_millis(100)).unwrap();
