@@ -48,6 +48,8 @@ pub struct LoadConfig {
     pub connect: Vec<String>,
     /// A Zenoh configuration file instead.
     pub zenoh_config: Option<PathBuf>,
+    /// Peer or client sessions (client: through a router only).
+    pub mode: crate::net::Mode,
     /// World name.
     pub world: WorldId,
     /// Number of clients.
@@ -344,14 +346,14 @@ fn act(c: &mut Client, rng: &mut Rng, timing: Timing, now: Instant) -> Option<Cl
 fn open_sessions(cfg: &LoadConfig) -> anyhow::Result<Vec<zenoh::Session>> {
     let file = cfg.zenoh_config.as_deref();
     let Some(users) = &cfg.users else {
-        return (0..cfg.sessions.max(1)).map(|_| crate::net::open(&cfg.connect, file, None)).collect();
+        return (0..cfg.sessions.max(1)).map(|_| crate::net::open(&cfg.connect, file, None, cfg.mode)).collect();
     };
     let mut sessions = Vec::with_capacity(cfg.clients as usize);
     for k in 0..cfg.clients {
         let id = cfg.first_client + k;
         let u = users.for_client(id).ok_or_else(|| anyhow::anyhow!("the users file has no user for client {id}"))?;
         let creds = crate::net::Credentials { user: u.name.clone(), password: u.password.clone() };
-        sessions.push(crate::net::open(&cfg.connect, file, Some(&creds))?);
+        sessions.push(crate::net::open(&cfg.connect, file, Some(&creds), cfg.mode)?);
         if cfg.progress && (k + 1) % 100 == 0 {
             eprintln!("  {} of {} sessions authenticated", k + 1, cfg.clients);
         }

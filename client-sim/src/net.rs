@@ -13,15 +13,33 @@ pub struct Credentials {
     pub password: String,
 }
 
+/// How a client session joins the Zenoh network.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum Mode {
+    /// A peer: connects to the endpoints given and, through gossip, directly to the peers they
+    /// know (the servers): the default for a server without a router.
+    #[default]
+    Peer,
+    /// A client: talks only to the router (or peer) it connects to, as game clients behind a
+    /// zenohd router do.
+    Client,
+}
+
 /// Opens a session connected to `connect` (or configured by `file`), authenticated as `creds`
 /// if given. Without a configuration file, a session that cannot reach every endpoint within
 /// 10 s (no server there, or it refused the credentials) is an error, not a silent wait.
-pub fn open(connect: &[String], file: Option<&Path>, creds: Option<&Credentials>) -> anyhow::Result<zenoh::Session> {
+pub fn open(
+    connect: &[String],
+    file: Option<&Path>,
+    creds: Option<&Credentials>,
+    mode: Mode,
+) -> anyhow::Result<zenoh::Session> {
     let mut c = match file {
         Some(p) => zenoh::Config::from_file(p).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?,
         None => {
             let mut c = zenoh::Config::default();
-            c.insert_json5("mode", "\"peer\"").map_err(|e| anyhow::anyhow!("{e}"))?;
+            let mode = if mode == Mode::Client { "\"client\"" } else { "\"peer\"" };
+            c.insert_json5("mode", mode).map_err(|e| anyhow::anyhow!("{e}"))?;
             c.insert_json5("scouting/multicast/enabled", "false").map_err(|e| anyhow::anyhow!("{e}"))?;
             c.insert_json5("listen/endpoints", "[]").map_err(|e| anyhow::anyhow!("{e}"))?;
             c.insert_json5("connect/timeout_ms", "10000").map_err(|e| anyhow::anyhow!("{e}"))?;

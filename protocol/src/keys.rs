@@ -39,9 +39,33 @@ pub const QUERY_STATE: KeyPattern = KeyPattern { name: "query_state", pattern: "
 /// Queryable: events of a tick range (`?from=T1;to=T2`).
 pub const QUERY_HISTORY: KeyPattern = KeyPattern { name: "query_history", pattern: "impact/v1/{world}/query/history" };
 
+/// The input log, one message per confirmed tick ([`LogTick`](crate::LogTick)).
+pub const LOG: KeyPattern = KeyPattern { name: "log", pattern: "impact/v1/{world}/log" };
+/// Inputs and server actions admitted but not yet confirmed ([`Admitted`](crate::Admitted)).
+pub const LOG_ADMITTED: KeyPattern = KeyPattern { name: "log_admitted", pattern: "impact/v1/{world}/log/admitted" };
+/// Liveliness token of the server that owns the world (a standby takes over when it goes).
+pub const SERVER: KeyPattern = KeyPattern { name: "server", pattern: "impact/v1/{world}/server" };
+/// Queryable: the complete confirmed state ([`Checkpoint`](crate::Checkpoint)), for a standby.
+pub const QUERY_CHECKPOINT: KeyPattern =
+    KeyPattern { name: "query_checkpoint", pattern: "impact/v1/{world}/query/checkpoint" };
+
 /// Every key impact uses.
-pub const PATTERNS: [KeyPattern; 10] =
-    [INPUT, EVENTS, CORRECTIONS, CONFIRMED, CLIENT_EVENTS, CLIENT_ACK, STATS, PRESENCE, QUERY_STATE, QUERY_HISTORY];
+pub const PATTERNS: [KeyPattern; 14] = [
+    INPUT,
+    EVENTS,
+    CORRECTIONS,
+    CONFIRMED,
+    CLIENT_EVENTS,
+    CLIENT_ACK,
+    STATS,
+    PRESENCE,
+    QUERY_STATE,
+    QUERY_HISTORY,
+    LOG,
+    LOG_ADMITTED,
+    SERVER,
+    QUERY_CHECKPOINT,
+];
 
 impl KeyPattern {
     /// The key for one world (and, where the pattern has one, one client).

@@ -8,6 +8,7 @@
 //! - [`keys`]: every Zenoh key expression, built in one place under `impact/v1/{world}`.
 //! - [`codec`]: [`encode`] and [`decode`], MessagePack by default, JSON on request.
 //! - [`limits`]: the hard bounds every decoded message is checked against.
+//! - [`log`]: the input log a standby follows and a recording replays.
 //!
 //! `PROTOCOL.md` at the repository root documents all of it for a client in another language.
 
@@ -17,6 +18,7 @@ pub mod event;
 pub mod ids;
 pub mod keys;
 pub mod limits;
+pub mod log;
 pub mod message;
 pub mod validate;
 
@@ -24,6 +26,7 @@ pub use codec::{decode, decode_unchecked, encode, input_header, Encoding};
 pub use error::ProtocolError;
 pub use event::{CollisionEvent, EventKey, EventStatus, Phase, Response};
 pub use ids::{ClientId, EntityId, Tick, WorldId};
+pub use log::{Admitted, Checkpoint, LogTick, LoggedInput, LoggedSystem};
 pub use message::{
     Action, BodyState, ClientInput, ClientMessage, CorrectionBatch, EventBatch, EventHistory, InputAck, InputReject,
     QueryError, RayHit, RayResult, RejectReason, ServerMessage, ServerStats, ShapeSpec, Welcome, WorldSnapshot,

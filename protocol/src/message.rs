@@ -134,6 +134,12 @@ pub enum ServerMessage {
     Stats(ServerStats),
     /// A query could not be answered.
     QueryError(QueryError),
+    /// One confirmed tick of the input log (`log`).
+    Log(crate::log::LogTick),
+    /// Inputs and server actions admitted in one server tick, not yet confirmed (`log/admitted`).
+    Admitted(crate::log::Admitted),
+    /// The complete confirmed state (answer to the checkpoint query).
+    Checkpoint(crate::log::Checkpoint),
 }
 
 /// The events of one tick.

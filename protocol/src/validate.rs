@@ -203,7 +203,10 @@ impl Validate for ServerMessage {
             ServerMessage::Ack(_)
             | ServerMessage::Reject(_)
             | ServerMessage::Welcome(_)
-            | ServerMessage::QueryError(_) => Ok(()),
+            | ServerMessage::QueryError(_)
+            | ServerMessage::Log(_)
+            | ServerMessage::Admitted(_)
+            | ServerMessage::Checkpoint(_) => Ok(()),
         }
     }
 }

@@ -6,6 +6,7 @@
 //!   tick is built from, one concept per module.
 //! - [`scene`]: the scene file format and loader.
 //! - [`offline`]: running a scene with no network (`impact-server --offline`).
+//! - [`recording`]: the input log on disk (`--record`) and its replay (`--offline --replay`).
 //! - [`rollback`]: the session with history: late inputs, re-simulation, corrections.
 //! - [`runtime`]: the Zenoh runtime (session, tick thread, ingress and egress).
 //! - [`stability`], [`trials`]: numerical stress cases and known-answer trials, shared by the
@@ -15,6 +16,7 @@ pub mod broadphase;
 pub mod narrow;
 pub mod offline;
 pub mod query;
+pub mod recording;
 pub mod rollback;
 #[cfg(feature = "runtime")]
 pub mod runtime;

@@ -12,6 +12,9 @@ use impact_server::scene::Scene;
 use impact_server::sim::{Plan, TickInput};
 use std::collections::BTreeMap;
 
+mod common;
+use common::range;
+
 fn session(name: &str, cfg: impl FnOnce(&mut RollbackConfig)) -> Session {
     let scene = Scene::load(&Scene::bundled_path(name)).unwrap();
     let mut c = RollbackConfig::for_world(&scene.world);
@@ -188,38 +191,6 @@ fn a_client_applying_events_then_corrections_ends_with_the_confirmed_stream() {
     }
     assert!(confirmed_count > 500);
     assert!(corrections > 10, "the run must exercise corrections (got {corrections})");
-}
-
-/// A shooter (entity 0, client 1) at the origin and a target (entity 1) crossing its line of
-/// fire (+x) at 8 m/s along z: its centre crosses z = 0 at tick 100, and it is destroyed when hit.
-fn range() -> Scene {
-    let text = r#"
-[world]
-name = "range"
-rollback_ms = 250
-default_response = "trigger"
-[[class]]
-name = "shooter"
-gravity = false
-[[class]]
-name = "target"
-gravity = false
-[[response]]
-between = ["shooter", "target"]
-kind = "destroy"
-destroy = "second"
-[[body]]
-class = "shooter"
-shape = { type = "sphere", radius_m = 0.3 }
-position = [0.0, 0.0, 0.0]
-owner = 1
-[[body]]
-class = "target"
-shape = { type = "sphere", radius_m = 0.5 }
-position = [20.0, 0.0, -12.5]
-velocity = [0.0, 0.0, 8.0]
-"#;
-    Scene::parse(text, "<range>").unwrap()
 }
 
 /// A session of the range, advanced to tick `now`.

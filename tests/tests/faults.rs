@@ -15,73 +15,27 @@
 
 mod common;
 
+use common::process::{rss_mib, server_binary, Proc};
 use impact_client_sim::delay::Link;
 use impact_client_sim::load::{self, Behaviour, Faults, LoadConfig};
 use impact_client_sim::timing::Timing;
 use impact_protocol::{Encoding, WorldId};
-use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 use std::time::Duration;
 
 const SEEDS: [u64; 4] = [1, 2, 3, 4];
 /// Resident memory the server may reach on the arena with 30 clients (it sits near 60 MiB).
 const RSS_BOUND_MIB: f64 = 512.0;
 
-fn server_binary() -> PathBuf {
-    // target/<profile>/deps/faults-<hash> -> target/<profile>/impact-server
-    let exe = std::env::current_exe().expect("test executable");
-    let bin = exe.parent().and_then(|d| d.parent()).map(|d| d.join("impact-server")).expect("target dir");
-    assert!(bin.exists(), "{} is missing: build it first with `cargo build -p impact-server`", bin.display());
-    bin
-}
-
-fn rss_mib(pid: u32) -> f64 {
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
-    let kb = status.lines().find_map(|l| l.strip_prefix("VmRSS:")).and_then(|v| v.split_whitespace().next());
-    kb.and_then(|k| k.parse::<f64>().ok()).map_or(0.0, |k| k / 1024.0)
-}
-
-/// The server process; killed if the test ends before it stopped.
-struct Server(Child);
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = Command::new("kill").arg("-CONT").arg(self.0.id().to_string()).status();
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-impl Server {
-    /// Asks the server to stop (SIGINT) and waits at most 10 s for its exit status.
-    fn stop(&mut self) -> Option<std::process::ExitStatus> {
-        let _ = Command::new("kill").arg("-INT").arg(self.0.id().to_string()).status();
-        let end = std::time::Instant::now() + Duration::from_secs(10);
-        while std::time::Instant::now() < end {
-            if let Ok(Some(status)) = self.0.try_wait() {
-                return Some(status);
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        None
-    }
-}
-
 /// One seed: returns what went wrong, if anything.
 fn run(seed: u64) -> Result<String, String> {
     let port = common::free_port();
     let endpoint = format!("tcp/127.0.0.1:{port}");
-    let log = std::env::temp_dir().join(format!("impact-fault-{seed}-{port}.log"));
-    let file = std::fs::File::create(&log).map_err(|e| format!("{}: {e}", log.display()))?;
-    let child = Command::new(server_binary())
-        .args(["--scene", &impact_server::scene::Scene::bundled_path("arena").to_string_lossy()])
-        .args(["--listen", &endpoint, "--quiet"])
-        .stdout(Stdio::null())
-        .stderr(file)
-        .spawn()
-        .map_err(|e| format!("starting the server: {e}"))?;
-    let mut server = Server(child);
-    let pid = server.0.id();
+    let mut cmd = Command::new(server_binary());
+    cmd.args(["--scene", &impact_server::scene::Scene::bundled_path("arena").to_string_lossy()])
+        .args(["--listen", &endpoint, "--quiet"]);
+    let mut server = Proc::spawn(&format!("fault-{seed}-{port}"), cmd);
+    let pid = server.pid();
     std::thread::sleep(Duration::from_millis(800));
     let duration = Duration::from_secs(6);
     let mut rng = impact_client_sim::delay::Rng::new(seed);
@@ -91,6 +45,7 @@ fn run(seed: u64) -> Result<String, String> {
     let faults = Faults::from_seed(seed, duration, Some(pid));
     let plan = format!("seed {seed}: uplink {uplink:?}, faults {faults:?}");
     let cfg = LoadConfig {
+        mode: Default::default(),
         connect: vec![endpoint],
         zenoh_config: None,
         world: WorldId::new("arena").unwrap(),
@@ -115,8 +70,7 @@ fn run(seed: u64) -> Result<String, String> {
     let report = load::run(&cfg).map_err(|e| format!("{plan}\nload: {e}"))?;
     let rss = rss_mib(pid);
     let status = server.stop();
-    let stderr = std::fs::read_to_string(&log).unwrap_or_default();
-    let _ = std::fs::remove_file(&log);
+    let stderr = server.output();
     let mut wrong = Vec::new();
     if !status.is_some_and(|s| s.success()) || stderr.contains("panicked") {
         wrong.push(format!("the server exited with {status:?} and said:\n{stderr}"));

@@ -333,6 +333,7 @@ fn ahead_clients_arrive_on_time_behind_clients_are_rolled_back_and_both_see_the_
         let (server, ep) = server(arena(), |_| {});
         let link = Link { latency: Duration::from_millis(40), jitter: Duration::from_millis(5), loss: 0.0 };
         let cfg = LoadConfig {
+            mode: Default::default(),
             connect: vec![ep],
             zenoh_config: None,
             world: WorldId::new("arena").unwrap(),

@@ -22,6 +22,9 @@ struct Args {
     /// Password for --user.
     #[arg(long, global = true, requires = "user")]
     password: Option<String>,
+    /// Zenoh session mode (`client` behind a router).
+    #[arg(long, value_enum, global = true, default_value_t = net::Mode::Peer)]
+    zenoh_mode: net::Mode,
     /// World name (default: every world).
     #[arg(long, global = true)]
     world: Option<String>,
@@ -189,7 +192,7 @@ fn main() -> Result<()> {
 /// A session to the server, authenticated when --user is given.
 fn open(a: &Args) -> Result<zenoh::Session> {
     let creds = a.user.clone().zip(a.password.clone()).map(|(user, password)| net::Credentials { user, password });
-    net::open(&a.connect, None, creds.as_ref())
+    net::open(&a.connect, None, creds.as_ref(), a.zenoh_mode)
 }
 
 fn query(a: &Args, world: Option<WorldId>, pattern: keys::KeyPattern, params: &str, f: &Filter) -> Result<()> {

@@ -4,6 +4,7 @@ use anyhow::{bail, Context, Result};
 use clap::Parser;
 use impact_client_sim::delay::Link;
 use impact_client_sim::load::{self, Behaviour, LoadConfig};
+use impact_client_sim::net;
 use impact_client_sim::report::latency_svg;
 use impact_client_sim::timing::Timing;
 use impact_protocol::{Encoding, WorldId};
@@ -72,6 +73,10 @@ struct Args {
     /// delivered input was never answered.
     #[arg(long)]
     assert_views: bool,
+    /// Zenoh session mode: `client` talks only to the router it connects to (a deployment
+    /// behind zenohd); `peer` may also connect to the servers directly.
+    #[arg(long, value_enum, default_value_t = net::Mode::Peer)]
+    zenoh_mode: net::Mode,
     /// Seed for behaviour and the network model.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -129,6 +134,7 @@ fn main() -> Result<()> {
     let cfg = LoadConfig {
         connect: if a.zenoh_config.is_some() { Vec::new() } else { a.connect.clone() },
         zenoh_config: a.zenoh_config.clone(),
+        mode: a.zenoh_mode,
         world: WorldId::new(a.world.clone()).map_err(anyhow::Error::msg)?,
         clients: a.clients,
         first_client: a.first_client,

@@ -1,18 +1,19 @@
 //! The impact server. `--offline` runs a scene through the core with no network, writes every
-//! event as a JSON line and prints the plan and the time per stage.
+//! event as a JSON line and prints the plan and the time per stage; `--offline --replay FILE`
+//! re-simulates a recording and checks every state hash.
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use impact_protocol::{Encoding, WorldId};
-use impact_server::offline;
 use impact_server::rollback::{RollbackConfig, StalePolicy};
 use impact_server::runtime::auth::Users;
 use impact_server::runtime::{self, ServerOptions};
 use impact_server::scene::Scene;
 use impact_server::sim::world::window_ticks;
 use impact_server::sim::Plan;
+use impact_server::{offline, recording};
 use std::io::{IsTerminal, Write};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -20,9 +21,10 @@ use std::time::Instant;
 #[derive(Parser, Debug)]
 #[command(version, about)]
 struct Args {
-    /// Scene file (TOML; see SCENES.md).
+    /// Scene file (TOML; see SCENES.md). Repeat it to serve several worlds from one process (one
+    /// tick thread each; the world names must differ).
     #[arg(long, required_unless_present = "print_acl")]
-    scene: Option<PathBuf>,
+    scene: Vec<PathBuf>,
     /// Run the core with no network, as fast as it goes.
     #[arg(long)]
     offline: bool,
@@ -38,6 +40,16 @@ struct Args {
     /// Print the first N events to stdout (offline).
     #[arg(long, default_value_t = 12)]
     print_events: usize,
+    /// With --offline: re-simulate this recording (from --record) and check every state hash.
+    #[arg(long, requires = "offline")]
+    replay: Option<PathBuf>,
+    /// Write the input log to this file: a recording `--offline --replay` reproduces. With
+    /// several worlds, the path must contain `{world}`.
+    #[arg(long, conflicts_with = "offline")]
+    record: Option<String>,
+    /// Follow each world's primary server and take over when it dies (see README, "Failover").
+    #[arg(long, conflicts_with_all = ["offline", "record"])]
+    standby: bool,
     /// Use the general path (GJK for every pair, no analytic kernels): for comparisons.
     #[arg(long)]
     general: bool,
@@ -50,7 +62,7 @@ struct Args {
     /// A Zenoh configuration file (JSON5) for anything else (a router, other transports).
     #[arg(long)]
     zenoh_config: Option<PathBuf>,
-    /// World name (the `{world}` key segment); default: the scene's.
+    /// World name (the `{world}` key segment); default: the scene's. Only with one --scene.
     #[arg(long)]
     world: Option<String>,
     /// Ticks per second; default: the scene's.
@@ -102,31 +114,22 @@ fn main() -> Result<()> {
         println!("{}", users.router_config(&args.dictionary_path));
         return Ok(());
     }
-    let path = args.scene.as_deref().context("--scene is required")?;
-    let mut scene = Scene::load(path).map_err(anyhow::Error::msg)?;
-    if let Some(name) = &args.world {
-        scene.name = WorldId::new(name.clone()).map_err(anyhow::Error::msg)?;
+    if args.world.is_some() && args.scene.len() > 1 {
+        bail!("--world names one world: give it with a single --scene (each scene names its own world)");
     }
-    if args.tick_hz.is_some() || args.rollback_ms.is_some() {
-        let cfg = Arc::make_mut(&mut scene.world.config);
-        // The window is a duration: keep it when only the tick rate changes.
-        let ms = args
-            .rollback_ms
-            .unwrap_or_else(|| (f64::from(cfg.window_ticks) * 1000.0 / f64::from(cfg.tick_hz)).round() as u32);
-        if let Some(hz) = args.tick_hz {
-            if !(1..=1000).contains(&hz) {
-                bail!("--tick-hz {hz} must be in 1..=1000");
-            }
-            cfg.tick_hz = hz;
-            cfg.dt = 1.0 / f64::from(hz);
-        }
-        cfg.window_ticks = window_ticks(ms, cfg.tick_hz);
+    let mut scenes = Vec::new();
+    for path in &args.scene {
+        scenes.push((load_scene(path, &args)?, path.clone()));
     }
     if !args.offline {
-        return serve(scene, &args, users);
+        return serve(scenes, &args, users);
+    }
+    let [(scene, path)] = <[_; 1]>::try_from(scenes).map_err(|_| anyhow::anyhow!("--offline runs one --scene"))?;
+    if let Some(rec) = &args.replay {
+        return replay(&scene, &path, rec);
     }
     let plan = if args.general { Plan::general(&scene.world) } else { Plan::for_world(&scene.world) };
-    println!("{}", describe(&scene, &args));
+    println!("{}", describe(&scene, &path));
     println!("{plan}");
     let inputs = match &args.inputs {
         Some(p) => offline::read_inputs(p)?,
@@ -184,51 +187,125 @@ fn main() -> Result<()> {
     Ok(())
 }
 
-fn serve(scene: Scene, args: &Args, users: Option<Users>) -> Result<()> {
-    let plan = Plan::for_world(&scene.world);
-    let mut rollback = RollbackConfig::for_world(&scene.world);
-    rollback.selective = args.selective;
-    rollback.self_check_ticks = args.self_check;
-    rollback.stale = if args.stale == "clamp" { StalePolicy::Clamp } else { StalePolicy::Reject };
-    println!("impact-server: {}", describe(&scene, args));
-    println!("{plan}");
-    let opts = ServerOptions {
-        listen: if args.zenoh_config.is_some() && args.listen == ["tcp/127.0.0.1:7447"] {
-            Vec::new()
-        } else {
-            args.listen.clone()
-        },
-        connect: args.connect.clone(),
-        zenoh_config: args.zenoh_config.clone(),
-        encoding: args.encoding,
-        rollback: Some(rollback),
-        inputs_per_client_per_s: args.rate_limit,
-        max_ticks: args.max_ticks,
-        verbose: !args.quiet,
-        users,
-        ..ServerOptions::default()
-    };
-    let world = scene.name.clone();
-    let mut handle = runtime::start(scene, opts.clone())?;
-    println!("listening on {} as impact/v1/{world}/...  (Ctrl-C to stop)", opts.listen.join(", "));
-    if let Some(u) = &opts.users {
+/// Loads a scene and applies the command line's overrides (world name, tick rate, window).
+fn load_scene(path: &Path, args: &Args) -> Result<Scene> {
+    let mut scene = Scene::load(path).map_err(anyhow::Error::msg)?;
+    if let Some(name) = &args.world {
+        scene.name = WorldId::new(name.clone()).map_err(anyhow::Error::msg)?;
+    }
+    if args.tick_hz.is_some() || args.rollback_ms.is_some() {
+        let cfg = Arc::make_mut(&mut scene.world.config);
+        // The window is a duration: keep it when only the tick rate changes.
+        let ms = args
+            .rollback_ms
+            .unwrap_or_else(|| (f64::from(cfg.window_ticks) * 1000.0 / f64::from(cfg.tick_hz)).round() as u32);
+        if let Some(hz) = args.tick_hz {
+            if !(1..=1000).contains(&hz) {
+                bail!("--tick-hz {hz} must be in 1..=1000");
+            }
+            cfg.tick_hz = hz;
+            cfg.dt = 1.0 / f64::from(hz);
+        }
+        cfg.window_ticks = window_ticks(ms, cfg.tick_hz);
+    }
+    Ok(scene)
+}
+
+/// `--offline --replay FILE`: re-simulates a recording and checks every state hash; fails on the
+/// first tick that differs.
+fn replay(scene: &Scene, path: &Path, rec: &Path) -> Result<()> {
+    println!("{}", describe(scene, path));
+    println!("replaying {}", rec.display());
+    let tty = std::io::stderr().is_terminal();
+    let mut last = Instant::now();
+    let report = recording::replay(scene, rec, |done| {
+        if last.elapsed().as_secs_f64() >= 1.0 {
+            last = Instant::now();
+            if tty {
+                eprint!("\r  tick {done}   ");
+            } else {
+                eprintln!("  tick {done}");
+            }
+        }
+    })
+    .map_err(anyhow::Error::msg)?;
+    if tty {
+        eprintln!();
+    }
+    println!("{report}");
+    if report.first_mismatch.is_some() {
+        bail!("the replay differs from the recording");
+    }
+    Ok(())
+}
+
+fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>) -> Result<()> {
+    if let Some(r) = &args.record {
+        if scenes.len() > 1 && !r.contains("{world}") {
+            bail!("--record {r}: with several worlds the path must contain {{world}}");
+        }
+    }
+    let mut worlds = Vec::new();
+    for (scene, path) in scenes {
+        let plan = Plan::for_world(&scene.world);
+        let mut rollback = RollbackConfig::for_world(&scene.world);
+        rollback.selective = args.selective;
+        rollback.self_check_ticks = args.self_check;
+        rollback.stale = if args.stale == "clamp" { StalePolicy::Clamp } else { StalePolicy::Reject };
+        println!("impact-server: {}{}", describe(&scene, &path), if args.standby { " (standby)" } else { "" });
+        println!("{plan}");
+        let opts = ServerOptions {
+            listen: if args.zenoh_config.is_some() && args.listen == ["tcp/127.0.0.1:7447"] {
+                Vec::new()
+            } else {
+                args.listen.clone()
+            },
+            connect: args.connect.clone(),
+            zenoh_config: args.zenoh_config.clone(),
+            encoding: args.encoding,
+            rollback: Some(rollback),
+            inputs_per_client_per_s: args.rate_limit,
+            max_ticks: args.max_ticks,
+            verbose: !args.quiet,
+            users: users.clone(),
+            record: args.record.as_ref().map(|r| PathBuf::from(r.replace("{world}", scene.name.as_str()))),
+            standby: args.standby,
+            ..ServerOptions::default()
+        };
+        worlds.push((scene, opts));
+    }
+    let names: Vec<String> = worlds.iter().map(|(s, _)| s.name.to_string()).collect();
+    let listen = worlds.first().map(|(_, o)| o.listen.join(", ")).unwrap_or_default();
+    let mut handles = runtime::start_worlds(worlds)?;
+    let keys: Vec<String> = names.iter().map(|n| format!("impact/v1/{n}/...")).collect();
+    println!("listening on {listen} as {}  (Ctrl-C to stop)", keys.join(", "));
+    if !args.connect.is_empty() {
+        println!("connecting to {}", args.connect.join(", "));
+    }
+    if let Some(u) = &users {
         println!("access control: {} users, default deny (user/password authentication required)", u.users.len());
     }
-    let stop = handle.stop_flag();
-    ctrlc::set_handler(move || stop.store(true, std::sync::atomic::Ordering::SeqCst))
-        .context("installing the Ctrl-C handler")?;
-    let summary = handle.join();
-    println!("stopped: final confirmed events published\n{summary}");
+    let flags: Vec<_> = handles.iter().map(|h| h.stop_flag()).collect();
+    ctrlc::set_handler(move || {
+        for f in &flags {
+            f.store(true, std::sync::atomic::Ordering::SeqCst);
+        }
+    })
+    .context("installing the Ctrl-C handler")?;
+    for h in &mut handles {
+        let summary = h.join();
+        println!("world {} stopped: final confirmed events published\n{summary}", h.world);
+    }
     Ok(())
 }
 
 /// One line about the scene: name, file, bodies, tick rate and rollback window.
-fn describe(scene: &Scene, args: &Args) -> String {
+fn describe(scene: &Scene, path: &Path) -> String {
     let w = &scene.world;
     format!(
         "world {} ({}): {} dynamic and {} static bodies{}, {} Hz, rollback window {} ticks",
         scene.name,
-        args.scene.as_deref().unwrap_or(std::path::Path::new("?")).display(),
+        path.display(),
         w.bodies.len(),
         w.statics.id.len(),
         if w.statics.terrain.is_some() { ", terrain" } else { "" },

@@ -14,6 +14,7 @@
 //! the world as it was at that tick.
 
 pub mod history;
+pub mod log;
 pub mod reconcile;
 pub mod replay;
 pub mod rewind;
@@ -105,6 +106,8 @@ pub struct Advance {
     pub rollback_depth: u32,
     /// Avatars spawned at this tick: `(owner, entity)`.
     pub spawned: Vec<(ClientId, impact_protocol::EntityId)>,
+    /// The tick that left the window with this advance: its inputs, actions and final hash.
+    pub log: Option<log::ConfirmedTick>,
 }
 
 /// Counters since start.
@@ -251,7 +254,7 @@ impl Session {
 
     /// Publishes every tick still in the window as confirmed (the server is stopping: nothing
     /// can change them any more). Oldest first.
-    pub fn finish(&mut self) -> Vec<EventBatch> {
+    pub fn finish(&mut self) -> Vec<(EventBatch, log::ConfirmedTick)> {
         let mut out = Vec::new();
         let ticks: Vec<Tick> = self.history.iter().map(|f| f.tick).collect();
         for t in ticks {
@@ -260,9 +263,72 @@ impl Session {
             for e in &mut events {
                 e.status = EventStatus::Confirmed;
             }
-            out.push(EventBatch { tick: t, revision: f.revision, events });
+            let after = self.history.get(t.next()).map_or_else(|| self.world.state_hash(), |n| n.state.state_hash());
+            let log =
+                log::ConfirmedTick { tick: t, system: f.system.clone(), inputs: f.inputs.clone(), state_hash: after };
+            out.push((EventBatch { tick: t, revision: f.revision, events }, log));
         }
         out
+    }
+
+    /// Queues a logged tick's server actions and inputs for the present tick, as the log says
+    /// they were applied (no window, lead or rate checks: the primary made them), and records the
+    /// seqs against replay. The next [`Session::advance`] steps it. `tick` must be the present.
+    pub fn follow(&mut self, tick: Tick, system: Vec<SystemAction>, inputs: Vec<TickInput>) -> Result<(), String> {
+        if tick < self.world.tick || (tick != self.world.tick && !system.is_empty()) {
+            return Err(format!("log tick {} does not follow tick {}", tick.0, self.world.tick.0.wrapping_sub(1)));
+        }
+        for i in &inputs {
+            self.windows.entry(i.client).or_default().accept(i.seq);
+        }
+        self.future.entry(tick.0).or_default().extend(inputs);
+        self.system.extend(system);
+        Ok(())
+    }
+
+    /// Takes over what another server published for `tick` (a standby taking over: `published`
+    /// at `revision` is what clients hold) and returns the correction from it to what this
+    /// session simulated, if they differ: clients see a takeover as one more rollback.
+    pub fn adopt(&mut self, tick: Tick, published: Vec<CollisionEvent>, revision: u32) -> Vec<CorrectionBatch> {
+        let Some(frame) = self.history.get_mut(tick) else { return Vec::new() };
+        let simulated = std::mem::replace(&mut frame.events, published);
+        frame.revision = revision;
+        let mut adv = Advance::default();
+        self.publish_resimulated(tick, simulated, &mut adv);
+        adv.corrections
+    }
+
+    /// The complete state after the last confirmed tick (the start of the oldest tick held),
+    /// with every client's replay window: what a standby starts from.
+    pub fn checkpoint(&self) -> Result<impact_protocol::Checkpoint, String> {
+        let start = self.history.oldest().and_then(|t| self.history.get(t)).map_or(&self.world, |f| &f.state);
+        let mut c = log::checkpoint_world(start)?;
+        c.clients = self
+            .windows
+            .iter()
+            .map(|(client, w)| {
+                let (highest_seq, seq_bits) = w.parts();
+                impact_protocol::log::CheckpointClient { client: *client, avatar: None, highest_seq, seq_bits }
+            })
+            .collect();
+        Ok(c)
+    }
+
+    /// A session continuing from a checkpoint: `scene` gives the statics and settings.
+    pub fn restore(
+        scene: &World,
+        c: &impact_protocol::Checkpoint,
+        plan: Plan,
+        cfg: RollbackConfig,
+    ) -> Result<Session, String> {
+        let world = log::restore_world(scene, c)?;
+        let mut s = Session::new(world, plan, cfg);
+        for cl in &c.clients {
+            let w = replay::SeqWindow::from_parts(cl.highest_seq, &cl.seq_bits)
+                .ok_or_else(|| format!("client {}'s replay window has {} words", cl.client, cl.seq_bits.len()))?;
+            s.windows.insert(cl.client, w);
+        }
+        Ok(s)
     }
 
     /// Accepts an input for its tick (or refuses it with a reason the client receives). A past
@@ -384,6 +450,10 @@ impl Session {
         let frame =
             Frame { tick, state, inputs, system, events: adv.events.clone(), revision: 0, paths, capped, resolutions };
         if let Some(old) = self.history.push(frame) {
+            // The state after the confirmed tick is the start of the oldest tick still held.
+            let after = self.history.oldest().and_then(|t| self.history.get(t)).map_or(0, |f| f.state.state_hash());
+            adv.log =
+                Some(log::ConfirmedTick { tick: old.tick, system: old.system, inputs: old.inputs, state_hash: after });
             let mut events = old.events;
             for e in &mut events {
                 e.status = EventStatus::Confirmed;

@@ -76,6 +76,16 @@ impl SeqWindow {
         self.highest.map_or(0, |h| h.saturating_add(1))
     }
 
+    /// The highest seq accepted and the window's bits (a checkpoint carries them).
+    pub fn parts(&self) -> (Option<u32>, Vec<u64>) {
+        (self.highest, self.bits.to_vec())
+    }
+
+    /// The window [`parts`](Self::parts) describe; `None` when `bits` has the wrong length.
+    pub fn from_parts(highest: Option<u32>, bits: &[u64]) -> Option<SeqWindow> {
+        Some(SeqWindow { highest, bits: bits.try_into().ok()? })
+    }
+
     fn bit(&self, seq: u32) -> bool {
         let i = seq % WINDOW;
         self.bits[(i / 64) as usize] & (1 << (i % 64)) != 0

@@ -32,6 +32,9 @@ pub fn rewind_rays<'a>(
     // (view tick, clamped, input, action, ray), grouped by view tick below.
     let mut shots: Vec<(Tick, bool, usize, u32, Ray)> = Vec::new();
     for (n, input) in inputs.iter_mut().enumerate() {
+        if input.logged {
+            continue;
+        }
         input.rewound.clear();
         let Some(requested) = input.view_tick else { continue };
         if requested >= tick {

@@ -1,5 +1,6 @@
 //! The egress thread: publishes what the tick thread hands it. Publishing uses congestion control
-//! `Drop`, so a slow subscriber loses its own messages and never holds anyone back.
+//! `Drop`, so a slow subscriber loses its own messages and never holds anyone back; the input
+//! log alone uses `Block`, because a standby that missed an entry has to start over.
 
 use impact_protocol::Encoding;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -16,6 +17,16 @@ pub enum Out {
         /// Payload.
         bytes: Vec<u8>,
         /// Its encoding (sets the sample's tag).
+        encoding: Encoding,
+    },
+    /// Publish `bytes` on `key` of the input log: congestion control `Block`, so a slow
+    /// subscriber (a standby) slows this thread rather than lose an entry.
+    Log {
+        /// Key expression.
+        key: String,
+        /// Payload.
+        bytes: Vec<u8>,
+        /// Its encoding.
         encoding: Encoding,
     },
     /// Answer a query.
@@ -37,6 +48,12 @@ pub fn run(session: zenoh::Session, rx: Receiver<Out>, failures: Arc<AtomicU64>)
                 .put(key, bytes)
                 .encoding(encoding.zenoh_tag())
                 .congestion_control(zenoh::qos::CongestionControl::Drop)
+                .wait()
+                .is_ok(),
+            Out::Log { key, bytes, encoding } => session
+                .put(key, bytes)
+                .encoding(encoding.zenoh_tag())
+                .congestion_control(zenoh::qos::CongestionControl::Block)
                 .wait()
                 .is_ok(),
             Out::Reply { query, bytes, encoding } => {

@@ -25,5 +25,5 @@ mod session;
 mod timing;
 
 pub use error::RuntimeError;
-pub use server::{start, ServerHandle, ServerOptions, Summary};
+pub use server::{start, start_worlds, ServerHandle, ServerOptions, Summary};
 pub use session::zenoh_config;

@@ -8,9 +8,9 @@ use crate::scene::{avatar_position, AvatarRule, Scene};
 use crate::sim::{Plan, SystemAction};
 use impact_protocol::limits::MAX_CLIENT_MESSAGE_BYTES;
 use impact_protocol::{
-    decode_unchecked, encode, keys, ClientId, ClientInput, ClientMessage, CollisionEvent, Encoding, EntityId,
-    EventBatch, EventHistory, InputAck, InputReject, QueryError, RejectReason, ServerMessage, ServerStats, Tick,
-    Validate, Welcome, WorldId,
+    decode_unchecked, encode, keys, Admitted, ClientId, ClientInput, ClientMessage, CollisionEvent, Encoding, EntityId,
+    EventBatch, EventHistory, InputAck, InputReject, LoggedInput, QueryError, RejectReason, ServerMessage, ServerStats,
+    Tick, Validate, Welcome, WorldId,
 };
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -20,6 +20,8 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use zenoh::Wait;
+
+mod standby;
 
 /// How to run the server.
 #[derive(Clone, Debug)]
@@ -50,6 +52,12 @@ pub struct ServerOptions {
     pub verbose: bool,
     /// Authenticated users and access control (`--users`); `None` lets anyone in.
     pub users: Option<super::auth::Users>,
+    /// Write the input log to this file (`--record`): a header line, then one JSON
+    /// [`LogTick`](impact_protocol::LogTick) per confirmed tick.
+    pub record: Option<PathBuf>,
+    /// Follow the world's primary (its checkpoint and log) and take over when its liveliness
+    /// token goes (`--standby`).
+    pub standby: bool,
 }
 
 impl Default for ServerOptions {
@@ -68,6 +76,8 @@ impl Default for ServerOptions {
             max_ticks: None,
             verbose: false,
             users: None,
+            record: None,
+            standby: false,
         }
     }
 }
@@ -115,6 +125,18 @@ pub struct Summary {
     pub clients: u64,
     /// Seconds from the start of the first tick to the end of the last (shutdown excluded).
     pub run_s: f64,
+    /// As a standby: confirmed ticks followed from the primary's log, and those whose state
+    /// hash differed from the log's (never, unless the two processes run different scenes).
+    pub followed_ticks: u64,
+    /// Followed ticks whose hash differed.
+    pub desyncs: u64,
+    /// As a standby that took over: the tick it took over at and the ticks it re-simulated from
+    /// the last confirmed one (acked inputs re-applied).
+    pub promoted_at: Option<Tick>,
+    /// Ticks re-simulated at the takeover.
+    pub caught_up_ticks: u32,
+    /// Acked inputs re-applied at the takeover.
+    pub reapplied_inputs: u64,
 }
 
 impl std::fmt::Display for Summary {
@@ -152,6 +174,20 @@ impl std::fmt::Display for Summary {
                 self.ticks,
                 total,
                 stages.join(", ")
+            )?;
+        }
+        if self.followed_ticks > 0 || self.promoted_at.is_some() {
+            writeln!(
+                f,
+                "standby: followed {} confirmed ticks ({} hashes differed)",
+                self.followed_ticks, self.desyncs
+            )?;
+        }
+        if let Some(t) = self.promoted_at {
+            writeln!(
+                f,
+                "took over at tick {} ({} ticks re-simulated from the last confirmed one, {} acked inputs re-applied)",
+                t.0, self.caught_up_ticks, self.reapplied_inputs
             )?;
         }
         write!(f, "egress messages dropped {}", self.egress_dropped)
@@ -247,27 +283,145 @@ fn reject(client: ClientId, header: Option<(u32, Tick)>, reason: RejectReason, d
     ServerMessage::Reject(InputReject { client, seq, tick, reason, detail, oldest_tick: None, newest_tick: None })
 }
 
-/// Starts the server on `scene` and returns at once; the tick thread runs until stopped.
-pub fn start(scene: Scene, opts: ServerOptions) -> Result<ServerHandle, RuntimeError> {
+/// Opens the process's Zenoh session (with `--users`' access control when given).
+fn open_session(opts: &ServerOptions) -> Result<Arc<Closer>, RuntimeError> {
     let mut config = super::zenoh_config(opts.zenoh_config.as_deref(), &opts.listen, &opts.connect)?;
     let dictionary = opts.users.as_ref().map(|u| u.apply(&mut config)).transpose()?;
     let zs = zenoh::open(config).wait().map_err(|e| RuntimeError::Zenoh(format!("opening the session: {e}")))?;
     // Zenoh read the password dictionary while opening: the file need not outlive this line.
     drop(dictionary);
+    Ok(Arc::new(Closer(zs)))
+}
+
+/// The process's Zenoh session, shared by its worlds and closed when the last one ends.
+pub(super) struct Closer(pub(super) zenoh::Session);
+
+impl Drop for Closer {
+    fn drop(&mut self) {
+        let _ = self.0.close().wait();
+    }
+}
+
+/// Starts the server on `scene` and returns at once; the tick thread runs until stopped.
+pub fn start(scene: Scene, opts: ServerOptions) -> Result<ServerHandle, RuntimeError> {
+    let zs = open_session(&opts)?;
+    start_world(&zs, scene, opts)
+}
+
+/// Starts several worlds in one process: one Zenoh session, one tick thread and one egress
+/// thread per world. Each world has its own options (record file, standby); the session's
+/// (listen, connect, users) are the first world's.
+pub fn start_worlds(worlds: Vec<(Scene, ServerOptions)>) -> Result<Vec<ServerHandle>, RuntimeError> {
+    let mut names = std::collections::BTreeSet::new();
+    for (scene, _) in &worlds {
+        if !names.insert(scene.name.clone()) {
+            return Err(RuntimeError::Config(format!("world {} is given twice", scene.name)));
+        }
+    }
+    let Some((_, first)) = worlds.first() else { return Ok(Vec::new()) };
+    let zs = open_session(first)?;
+    worlds.into_iter().map(|(scene, opts)| start_world(&zs, scene, opts)).collect()
+}
+
+/// What a world's callbacks send into its tick thread, kept to declare the primary's
+/// subscriber and queryables (at start, or when a standby takes over).
+struct Wiring {
+    ingress: SyncSender<Ingress>,
+    queries: SyncSender<zenoh::query::Query>,
+    egress: SyncSender<Out>,
+    shared: Arc<Shared>,
+    encoding: Encoding,
+}
+
+/// The declarations that make a process the world's server: inputs, queries and the
+/// liveliness token a standby watches. Undeclared when dropped.
+struct Primary {
+    _inputs: zenoh::pubsub::Subscriber<()>,
+    _queryables: Vec<zenoh::query::Queryable<()>>,
+    _token: zenoh::liveliness::LivelinessToken,
+}
+
+fn start_world(zs: &Arc<Closer>, scene: Scene, opts: ServerOptions) -> Result<ServerHandle, RuntimeError> {
     let world_id = scene.name.clone();
     let shared = Arc::new(Shared::default());
     let (egress_tx, egress_rx) = sync_channel::<Out>(opts.egress_capacity);
     let (ingress_tx, ingress_rx) = sync_channel::<Ingress>(opts.ingress_capacity);
     let (control_tx, control_rx) = sync_channel::<Control>(opts.max_clients.max(16) * 2);
     let (query_tx, query_rx) = sync_channel::<zenoh::query::Query>(256);
+    let record = match &opts.record {
+        Some(path) => Some(crate::recording::Recorder::create(path, &scene).map_err(RuntimeError::Config)?),
+        None => None,
+    };
+    let wiring = Wiring {
+        ingress: ingress_tx,
+        queries: query_tx,
+        egress: egress_tx.clone(),
+        shared: shared.clone(),
+        encoding: opts.encoding,
+    };
+    // Presence: a standby follows it too, to know who is there when it takes over.
+    let presence_sub = {
+        let tx = control_tx;
+        zs.0.liveliness()
+            .declare_subscriber(keys::PRESENCE.any_client(&world_id))
+            .history(true)
+            .callback(move |sample| {
+                if let Ok((_, Some(client))) = keys::PRESENCE.parse(sample.key_expr().as_str()) {
+                    let c = match sample.kind() {
+                        zenoh::sample::SampleKind::Put => Control::Join(client),
+                        zenoh::sample::SampleKind::Delete => Control::Leave(client),
+                    };
+                    let _ = tx.try_send(c);
+                }
+            })
+            .wait()
+            .map_err(|e| RuntimeError::Zenoh(format!("declaring the presence subscriber: {e}")))?
+    };
+    let follower = if opts.standby { Some(standby::Follower::start(&zs.0, &world_id)?) } else { None };
+    let primary = if opts.standby { None } else { Some(declare_primary(&zs.0, &world_id, &wiring)?) };
 
-    // Inputs: decode and validate in the callback, enqueue, never block.
+    let egress_session = zs.0.clone();
+    let egress_failures = Arc::new(AtomicU64::new(0));
+    let ef = egress_failures.clone();
+    let egress_thread = std::thread::Builder::new()
+        .name(format!("impact-egress-{world_id}"))
+        .spawn(move || egress::run(egress_session, egress_rx, ef))
+        .map_err(|e| RuntimeError::Thread(e.to_string()))?;
+
+    let stop = Arc::new(AtomicBool::new(false));
+    let stop2 = stop.clone();
+    let world_name = world_id.clone();
+    let zs = zs.clone();
+    let thread = std::thread::Builder::new()
+        .name(format!("impact-tick-{world_id}"))
+        .spawn(move || {
+            let mut t = TickLoop::new(scene, opts, world_name, egress_tx, shared);
+            t.record = record;
+            t.primary = primary;
+            let summary = t.run(&stop2, &zs.0, &wiring, follower, ingress_rx, control_rx, query_rx);
+            // Undeclare the callbacks (they hold senders of the egress queue), then drop the
+            // tick loop's sender: the queue closes, the egress thread drains it and ends.
+            drop(presence_sub);
+            drop(wiring);
+            drop(t);
+            let _ = egress_thread.join();
+            // The session closes with the process's last world.
+            drop(zs);
+            summary
+        })
+        .map_err(|e| RuntimeError::Thread(e.to_string()))?;
+    Ok(ServerHandle { stop, thread: Some(thread), world: world_id })
+}
+
+/// Declares what makes this process the world's server: the input subscriber (decode and
+/// validate in the callback, enqueue, never block), the queryables, and its liveliness token.
+fn declare_primary(zs: &zenoh::Session, world_id: &WorldId, wiring: &Wiring) -> Result<Primary, RuntimeError> {
     let input_sub = {
-        let tx = ingress_tx;
-        let etx = egress_tx.clone();
-        let shared = shared.clone();
-        let default_enc = opts.encoding;
-        zs.declare_subscriber(keys::INPUT.any_client(&world_id))
+        let tx = wiring.ingress.clone();
+        let etx = wiring.egress.clone();
+        let shared = wiring.shared.clone();
+        let default_enc = wiring.encoding;
+        zs.declare_subscriber(keys::INPUT.any_client(world_id))
             .callback(move |sample| {
                 let key = sample.key_expr().as_str().to_string();
                 let from_key = keys::INPUT.parse(&key).ok().and_then(|(_, c)| c);
@@ -329,31 +483,12 @@ pub fn start(scene: Scene, opts: ServerOptions) -> Result<ServerHandle, RuntimeE
         keys::INPUT.parse(key).map(|(w, _)| w).unwrap_or_else(|_| WorldId::new("unknown").expect("valid name"))
     }
 
-    // Presence.
-    let presence_sub = {
-        let tx = control_tx;
-        zs.liveliness()
-            .declare_subscriber(keys::PRESENCE.any_client(&world_id))
-            .history(true)
-            .callback(move |sample| {
-                if let Ok((_, Some(client))) = keys::PRESENCE.parse(sample.key_expr().as_str()) {
-                    let c = match sample.kind() {
-                        zenoh::sample::SampleKind::Put => Control::Join(client),
-                        zenoh::sample::SampleKind::Delete => Control::Leave(client),
-                    };
-                    let _ = tx.try_send(c);
-                }
-            })
-            .wait()
-            .map_err(|e| RuntimeError::Zenoh(format!("declaring the presence subscriber: {e}")))?
-    };
-
     // Queries: answered by the tick thread (it owns the history), replied by the egress thread.
     let mut queryables = Vec::new();
-    for pattern in [keys::QUERY_STATE, keys::QUERY_HISTORY] {
-        let tx = query_tx.clone();
+    for pattern in [keys::QUERY_STATE, keys::QUERY_HISTORY, keys::QUERY_CHECKPOINT] {
+        let tx = wiring.queries.clone();
         let q = zs
-            .declare_queryable(pattern.key(&world_id, None))
+            .declare_queryable(pattern.key(world_id, None))
             .callback(move |query| {
                 let _ = tx.try_send(query);
             })
@@ -361,33 +496,12 @@ pub fn start(scene: Scene, opts: ServerOptions) -> Result<ServerHandle, RuntimeE
             .map_err(|e| RuntimeError::Zenoh(format!("declaring a queryable: {e}")))?;
         queryables.push(q);
     }
-
-    let egress_session = zs.clone();
-    let egress_failures = Arc::new(AtomicU64::new(0));
-    let ef = egress_failures.clone();
-    let egress_thread = std::thread::Builder::new()
-        .name("impact-egress".into())
-        .spawn(move || egress::run(egress_session, egress_rx, ef))
-        .map_err(|e| RuntimeError::Thread(e.to_string()))?;
-
-    let stop = Arc::new(AtomicBool::new(false));
-    let stop2 = stop.clone();
-    let world_name = world_id.clone();
-    let thread = std::thread::Builder::new()
-        .name("impact-tick".into())
-        .spawn(move || {
-            let mut t = TickLoop::new(scene, opts, world_name, egress_tx, shared);
-            let summary = t.run(&stop2, ingress_rx, control_rx, query_rx);
-            // Undeclare the callbacks (they hold senders of the egress queue), then drop the
-            // tick loop's sender: the queue closes, the egress thread drains it and ends.
-            drop((input_sub, presence_sub, queryables));
-            drop(t);
-            let _ = egress_thread.join();
-            let _ = zs.close().wait();
-            summary
-        })
-        .map_err(|e| RuntimeError::Thread(e.to_string()))?;
-    Ok(ServerHandle { stop, thread: Some(thread), world: world_id })
+    let token = zs
+        .liveliness()
+        .declare_token(keys::SERVER.key(world_id, None))
+        .wait()
+        .map_err(|e| RuntimeError::Zenoh(format!("declaring the server's liveliness token: {e}")))?;
+    Ok(Primary { _inputs: input_sub, _queryables: queryables, _token: token })
 }
 
 struct TickLoop {
@@ -407,6 +521,17 @@ struct TickLoop {
     period_queue_max: u32,
     /// Rollbacks by depth (index: ticks re-simulated; bounded by the window).
     depths: Vec<u64>,
+    /// The declarations of the world's server (`None` while a standby follows).
+    primary: Option<Primary>,
+    /// The `--record` file.
+    record: Option<crate::recording::Recorder>,
+    /// Inputs acked and server actions queued in this tick: the `log/admitted` message.
+    admitted: Admitted,
+    /// This tick's acks, held until `admitted` is out.
+    acks: Vec<(String, ServerMessage, Encoding)>,
+    /// The last tick an earlier primary confirmed: a standby that took over never publishes a
+    /// tick up to it as confirmed again.
+    confirmed_upto: Option<Tick>,
 }
 
 /// A fixed-bucket histogram of tick durations (0.01 ms buckets up to 100 ms), so a long run's
@@ -476,11 +601,32 @@ impl TickLoop {
             period_depth: 0,
             depths: Vec::new(),
             period_queue_max: 0,
+            primary: None,
+            record: None,
+            admitted: Admitted { tick: Tick(0), system: Vec::new(), inputs: Vec::new() },
+            acks: Vec::new(),
+            confirmed_upto: None,
         }
     }
 
     fn put(&self, key: String, msg: &ServerMessage, encoding: Encoding) {
         send(&self.egress, &self.shared, key, msg, encoding);
+    }
+
+    /// Publishes on the log streams: in order with everything else, but never dropped by
+    /// congestion (a standby that misses an entry must start again from a checkpoint).
+    fn put_log(&self, key: String, msg: &ServerMessage) {
+        let enc = self.opts.encoding;
+        match encode(msg, enc) {
+            Ok(bytes) => {
+                if self.egress.try_send(Out::Log { key, bytes, encoding: enc }).is_err() {
+                    self.shared.egress_dropped.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+            Err(_) => {
+                self.shared.egress_failed.fetch_add(1, Ordering::Relaxed);
+            }
+        }
     }
 
     /// A client's `client/{id}/ack` key (formatted once, when the client was first seen).
@@ -509,13 +655,30 @@ impl TickLoop {
         }
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn run(
         &mut self,
         stop: &AtomicBool,
+        zs: &zenoh::Session,
+        wiring: &Wiring,
+        follower: Option<standby::Follower>,
         ingress: Receiver<Ingress>,
         control: Receiver<Control>,
         queries: Receiver<zenoh::query::Query>,
     ) -> Summary {
+        if let Some(f) = follower {
+            if !self.follow(f, stop, zs, &control) {
+                return self.finish();
+            }
+            match declare_primary(zs, &self.world, wiring) {
+                Ok(p) => self.primary = Some(p),
+                Err(e) => {
+                    eprintln!("impact-server: world {}: taking over failed: {e}", self.world);
+                    return self.finish();
+                }
+            }
+            self.reanchor();
+        }
         let hz = self.session.world().config.tick_hz;
         let dt = Duration::from_secs_f64(1.0 / f64::from(hz));
         let started = Instant::now();
@@ -553,8 +716,26 @@ impl TickLoop {
         }
         self.summary.run_s = started.elapsed().as_secs_f64();
         // Shutdown: everything still in the window is final now.
-        for batch in self.session.finish() {
+        for (batch, log) in self.session.finish() {
+            if self.confirmed_upto.is_some_and(|c| batch.tick <= c) {
+                continue;
+            }
             self.put(keys::CONFIRMED.key(&self.world, None), &ServerMessage::Confirmed(batch), self.opts.encoding);
+            let entry = log.to_wire();
+            if let Some(r) = self.record.as_mut() {
+                r.write(&entry);
+            }
+            self.put_log(keys::LOG.key(&self.world, None), &ServerMessage::Log(entry));
+        }
+        self.finish()
+    }
+
+    /// The run's summary (after the last tick).
+    fn finish(&mut self) -> Summary {
+        if let Some(r) = self.record.as_mut() {
+            if let Err(e) = r.flush() {
+                eprintln!("impact-server: world {}: {e}", self.world);
+            }
         }
         self.summary.tick_ms_p50 = self.all_tick_times.quantile(0.5);
         self.summary.tick_ms_p99 = self.all_tick_times.quantile(0.99);
@@ -598,8 +779,20 @@ impl TickLoop {
         control: &Receiver<Control>,
         queries: &Receiver<zenoh::query::Query>,
     ) {
+        self.presence(control);
+        self.ingest(ingress);
+        self.publish_admitted();
+        self.step();
+        // Queries, answered from the history.
+        while let Ok(q) = queries.try_recv() {
+            self.answer(q);
+        }
+    }
+
+    /// Joins and leaves; avatars whose client's grace ended are removed. A standby only keeps
+    /// track (its primary's log carries the spawns and removals).
+    fn presence(&mut self, control: &Receiver<Control>) {
         let now = self.session.now();
-        // Presence.
         while let Ok(c) = control.try_recv() {
             match c {
                 Control::Join(client) => self.join(client),
@@ -617,15 +810,28 @@ impl TickLoop {
             .filter(|(_, s)| !s.present && s.leave_at.is_some_and(|t| t <= now.0))
             .map(|(c, _)| *c)
             .collect();
+        if self.primary.is_none() {
+            return;
+        }
         for c in leaving {
             self.session.forget_client(c);
             if let Some(s) = self.clients.remove(&c) {
                 if let Some(entity) = s.avatar {
-                    self.session.submit_system(SystemAction::Remove { entity });
+                    self.submit_system(SystemAction::Remove { entity });
                 }
             }
         }
-        // Inputs: every one queued now (the queue is bounded, so this is too).
+    }
+
+    /// Queues a server action for the present tick, and for the admitted log.
+    fn submit_system(&mut self, a: SystemAction) {
+        self.admitted.system.push(crate::rollback::log::logged_system(&a));
+        self.session.submit_system(a);
+    }
+
+    /// Inputs: every one queued now (the queue is bounded, so this is too).
+    fn ingest(&mut self, ingress: &Receiver<Ingress>) {
+        let now = self.session.now();
         let per_tick = f64::from(self.opts.inputs_per_client_per_s) / f64::from(self.session.world().config.tick_hz);
         for c in self.clients.values_mut() {
             c.tokens = (c.tokens + per_tick).min(f64::from(self.opts.inputs_per_client_per_s));
@@ -663,9 +869,18 @@ impl TickLoop {
             }
             state.tokens -= 1.0;
             let view = input.view_tick.unwrap_or(tick);
+            let logged = LoggedInput {
+                client,
+                seq,
+                tick,
+                view_tick: input.view_tick,
+                actions: input.actions.clone(),
+                rewound: Vec::new(),
+            };
             match self.session.submit(input) {
                 Ok(applied) => {
                     self.summary.inputs_accepted += 1;
+                    self.admitted.inputs.push(LoggedInput { tick: applied, ..logged });
                     // The most a client can lead by and still be accepted: its round trip (the
                     // smallest lead that is on time) plus the ticks the server accepts ahead.
                     let max_lead = now.0.saturating_sub(view.0).saturating_add(self.session.config().lead_ticks);
@@ -680,7 +895,8 @@ impl TickLoop {
                         margin_ticks,
                         lead_ticks,
                     });
-                    self.put(ack_key, &ack, encoding);
+                    // Sent after the admitted log (see `publish_admitted`).
+                    self.acks.push((ack_key, ack, encoding));
                 }
                 Err(r) => {
                     self.count_reject(r.reason);
@@ -698,9 +914,35 @@ impl TickLoop {
             }
         }
         self.period_queue_max = self.period_queue_max.max(queued);
+    }
 
-        // The tick.
+    /// Publishes what this tick admitted (a standby re-applies it if this process dies before
+    /// the tick is confirmed), then the acks: a client never holds an ack for an input a standby
+    /// could not know of. Nothing admitted: nothing sent.
+    fn publish_admitted(&mut self) {
+        let now = self.session.now();
+        if !self.admitted.inputs.is_empty() || !self.admitted.system.is_empty() {
+            self.admitted.tick = now;
+            let msg = ServerMessage::Admitted(std::mem::replace(
+                &mut self.admitted,
+                Admitted { tick: now, system: Vec::new(), inputs: Vec::new() },
+            ));
+            self.put_log(keys::LOG_ADMITTED.key(&self.world, None), &msg);
+        }
+        for (key, ack, encoding) in std::mem::take(&mut self.acks) {
+            self.put(key, &ack, encoding);
+        }
+    }
+
+    /// Steps the present tick and publishes what it produced: events, corrections, the tick
+    /// that left the window (confirmed events and its log entry), ray results, skips, welcomes.
+    fn step(&mut self) {
         let adv = self.session.advance();
+        self.publish(adv);
+    }
+
+    /// Publishes what one advance produced.
+    fn publish(&mut self, mut adv: crate::rollback::Advance) {
         self.summary.ticks += 1;
         if adv.rollback_depth > 0 {
             self.period_rollbacks += 1;
@@ -739,7 +981,17 @@ impl TickLoop {
             });
             self.put(keys::CORRECTIONS.key(&self.world, None), &ServerMessage::Corrections(c.clone()), enc);
         }
-        if let Some(c) = &adv.confirmed {
+        // A standby that took over re-simulates ticks its primary already confirmed: they were
+        // published then, and are not again.
+        let fresh = |t: Tick| self.confirmed_upto.is_none_or(|c| t > c);
+        if let Some(log) = adv.log.take().filter(|l| fresh(l.tick)) {
+            let entry = log.to_wire();
+            if let Some(r) = self.record.as_mut() {
+                r.write(&entry);
+            }
+            self.put_log(keys::LOG.key(&self.world, None), &ServerMessage::Log(entry));
+        }
+        if let Some(c) = adv.confirmed.as_ref().filter(|c| fresh(c.tick)) {
             if !c.events.is_empty() {
                 let cc = c.clone();
                 self.per_client(&c.events, c.tick, move |events| {
@@ -761,11 +1013,9 @@ impl TickLoop {
             if let Some(c) = self.clients.get_mut(client) {
                 c.avatar = Some(*entity);
             }
-            self.welcome(*client, Some(*entity));
-        }
-        // Queries, answered from the history.
-        while let Ok(q) = queries.try_recv() {
-            self.answer(q);
+            if self.primary.is_some() {
+                self.welcome(*client, Some(*entity));
+            }
         }
     }
 
@@ -787,6 +1037,14 @@ impl TickLoop {
 
     fn join(&mut self, client: ClientId) {
         let now = self.session.now();
+        if self.primary.is_none() {
+            // A standby: remember the client is there; its primary spawns the avatar.
+            let state = self.new_client(client, true, None, self.opts.encoding);
+            let s = self.clients.entry(client).or_insert(state);
+            s.present = true;
+            s.leave_at = None;
+            return;
+        }
         if let Some(s) = self.clients.get_mut(&client) {
             s.present = true;
             s.leave_at = None;
@@ -805,12 +1063,8 @@ impl TickLoop {
         match (&self.avatar, had) {
             (Some(rule), _) => {
                 let pos = avatar_position(rule, client.0, now.0);
-                self.session.submit_system(SystemAction::SpawnAvatar {
-                    client,
-                    class: rule.class,
-                    shape: rule.shape.clone(),
-                    pos,
-                });
+                let (class, shape) = (rule.class, rule.shape.clone());
+                self.submit_system(SystemAction::SpawnAvatar { client, class, shape, pos });
             }
             (None, _) => self.welcome(client, None),
         }
@@ -850,7 +1104,26 @@ impl TickLoop {
         let parse = |name: &str| {
             params.get(name).map(|v| v.parse::<u32>().map(Tick).map_err(|_| format!("{name}={v} is not a tick")))
         };
-        let msg = if key.ends_with("/query/state") {
+        let msg = if key.ends_with("/query/checkpoint") {
+            match self.session.checkpoint() {
+                Ok(mut c) => {
+                    // Every client the server remembers, with its avatar.
+                    for (client, s) in &self.clients {
+                        match c.clients.iter_mut().find(|x| x.client == *client) {
+                            Some(x) => x.avatar = s.avatar,
+                            None => c.clients.push(impact_protocol::log::CheckpointClient {
+                                client: *client,
+                                avatar: s.avatar,
+                                highest_seq: None,
+                                seq_bits: vec![0; crate::rollback::replay::WINDOW as usize / 64],
+                            }),
+                        }
+                    }
+                    ServerMessage::Checkpoint(c)
+                }
+                Err(e) => ServerMessage::QueryError(QueryError { detail: e }),
+            }
+        } else if key.ends_with("/query/state") {
             match parse("tick").transpose() {
                 Err(e) => ServerMessage::QueryError(QueryError { detail: e }),
                 Ok(t) => {

@@ -30,12 +30,15 @@ pub struct TickInput {
     /// again whenever it is re-simulated); a ray with no entry is cast against the tick's own
     /// world.
     pub rewound: Vec<RewoundRay>,
+    /// `rewound` came from the input log (a follower, a replay): it is used as it is, never cast
+    /// again (the worlds it was cast against may be older than the follower's history).
+    pub logged: bool,
 }
 
 impl TickInput {
     /// An input with no view tick of its own.
     pub fn new(client: ClientId, seq: u32, actions: Vec<Action>) -> TickInput {
-        TickInput { client, seq, actions, view_tick: None, rewound: Vec::new() }
+        TickInput { client, seq, actions, view_tick: None, rewound: Vec::new(), logged: false }
     }
 }
 

@@ -2,6 +2,8 @@
 //! a bounded wait for messages.
 #![allow(dead_code)]
 
+pub mod process;
+
 use impact_protocol::{encode, keys, ClientId, ClientInput, ClientMessage, Encoding, ServerMessage, WorldId};
 use impact_server::runtime::{self, ServerHandle, ServerOptions};
 use impact_server::scene::Scene;
@@ -31,7 +33,7 @@ pub fn client(endpoint: &str) -> zenoh::Session {
 /// A client session connected to `endpoint`, authenticated as `(user, password)` if given.
 pub fn client_as(endpoint: &str, creds: Option<(&str, &str)>) -> anyhow::Result<zenoh::Session> {
     let creds = creds.map(|(u, p)| impact_client_sim::net::Credentials { user: u.into(), password: p.into() });
-    let s = impact_client_sim::net::open(&[endpoint.to_string()], None, creds.as_ref())?;
+    let s = impact_client_sim::net::open(&[endpoint.to_string()], None, creds.as_ref(), Default::default())?;
     // Give the link a moment to come up before declaring interest.
     std::thread::sleep(Duration::from_millis(300));
     Ok(s)

@@ -1,0 +1,406 @@
+//! A standby: a second process for a world that follows its primary and takes over when the
+//! primary dies.
+//!
+//! It starts from the primary's checkpoint (the complete state after the last confirmed tick),
+//! then steps every confirmed tick of the input log and checks the state hash the log carries.
+//! Beside the log it keeps what the primary admitted but has not confirmed yet (`log/admitted`)
+//! and the events the primary published for those ticks (`events`, `corrections`). When the
+//! primary's liveliness token goes, it re-simulates the ticks since the last confirmed one with
+//! every acked input, publishes the difference from what clients hold as a correction (a takeover
+//! looks like one more rollback), declares the world's subscriber, queryables and token, and
+//! welcomes every present client again so it re-anchors its clock. Ticks the primary confirmed
+//! are never published again; ticks it did not confirm are confirmed by the standby, once.
+
+use super::{Control, RuntimeError, TickLoop};
+use crate::rollback::log::{self, ConfirmedTick};
+use crate::rollback::{Advance, Session};
+use crate::sim::{SystemAction, TickInput};
+use impact_protocol::{
+    decode, keys, Admitted, CollisionEvent, Encoding, EventKey, LogTick, ServerMessage, Tick, WorldId,
+};
+use std::collections::{BTreeMap, VecDeque};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::mpsc::{sync_channel, Receiver, RecvTimeoutError};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use zenoh::Wait;
+
+/// Messages the follower's callbacks pass to the tick thread. A full queue drops the message and
+/// counts it: the standby then starts again from a checkpoint.
+const FOLLOW_QUEUE: usize = 16_384;
+
+/// Log entries held while no checkpoint has been restored yet (the checkpoint's tick is among
+/// them or later).
+const EARLY_LOG: usize = 4_096;
+
+/// The largest reply a checkpoint may be (a world of `max_bodies` bodies fits).
+const MAX_CHECKPOINT_BYTES: usize = 256 << 20;
+
+enum Followed {
+    Log(LogTick),
+    Admitted(Admitted),
+    Published(ServerMessage),
+    PrimaryUp,
+    PrimaryDown,
+}
+
+/// The subscriptions a standby follows its primary through.
+pub(super) struct Follower {
+    rx: Receiver<Followed>,
+    lost: Arc<AtomicU64>,
+    _subs: Vec<zenoh::pubsub::Subscriber<()>>,
+}
+
+impl Follower {
+    /// Subscribes to the world's log, admitted inputs, published events and server token.
+    pub(super) fn start(zs: &zenoh::Session, world: &WorldId) -> Result<Follower, RuntimeError> {
+        let (tx, rx) = sync_channel::<Followed>(FOLLOW_QUEUE);
+        let lost = Arc::new(AtomicU64::new(0));
+        let mut subs = Vec::new();
+        for pattern in [keys::LOG, keys::LOG_ADMITTED, keys::EVENTS, keys::CORRECTIONS] {
+            let (tx, lost) = (tx.clone(), lost.clone());
+            let sub = zs
+                .declare_subscriber(pattern.key(world, None))
+                .callback(move |sample| {
+                    let enc = Encoding::from_zenoh_tag(&sample.encoding().to_string()).unwrap_or(Encoding::MsgPack);
+                    let bytes = sample.payload().to_bytes();
+                    let msg = match decode::<ServerMessage>(&bytes, enc, MAX_CHECKPOINT_BYTES) {
+                        Ok(ServerMessage::Log(l)) => Followed::Log(l),
+                        Ok(ServerMessage::Admitted(a)) => Followed::Admitted(a),
+                        Ok(m @ (ServerMessage::Events(_) | ServerMessage::Corrections(_))) => Followed::Published(m),
+                        _ => return,
+                    };
+                    if tx.try_send(msg).is_err() {
+                        lost.fetch_add(1, Ordering::Relaxed);
+                    }
+                })
+                .wait()
+                .map_err(|e| RuntimeError::Zenoh(format!("declaring the standby's subscriber: {e}")))?;
+            subs.push(sub);
+        }
+        let primary = zs
+            .liveliness()
+            .declare_subscriber(keys::SERVER.key(world, None))
+            .history(true)
+            .callback(move |sample| {
+                let m = match sample.kind() {
+                    zenoh::sample::SampleKind::Put => Followed::PrimaryUp,
+                    zenoh::sample::SampleKind::Delete => Followed::PrimaryDown,
+                };
+                // Blocking here would stall Zenoh; the token's news is never dropped in practice
+                // (one message per primary), and a lost one is seen again on the next change.
+                let _ = tx.try_send(m);
+            })
+            .wait()
+            .map_err(|e| RuntimeError::Zenoh(format!("declaring the standby's liveliness subscriber: {e}")))?;
+        subs.push(primary);
+        Ok(Follower { rx, lost, _subs: subs })
+    }
+}
+
+/// What the standby knows of the ticks its primary has not confirmed.
+#[derive(Default)]
+struct Unconfirmed {
+    /// Server actions and acked inputs, by the tick they apply at.
+    admitted: BTreeMap<u32, (Vec<SystemAction>, Vec<TickInput>)>,
+    /// Events as the primary published them (with their latest revision), by tick.
+    published: BTreeMap<u32, (BTreeMap<EventKey, CollisionEvent>, u32)>,
+    /// The newest tick the primary said it was at.
+    newest: Option<Tick>,
+}
+
+impl Unconfirmed {
+    /// Forgets everything up to the confirmed tick `t`: the log has it now.
+    fn confirmed(&mut self, t: Tick) {
+        self.admitted = self.admitted.split_off(&(t.0 + 1));
+        self.published = self.published.split_off(&(t.0 + 1));
+    }
+
+    fn admit(&mut self, a: Admitted, avatar: log::AvatarShape<'_>) -> Result<(), String> {
+        self.newest = self.newest.max(Some(a.tick));
+        let system = a.system.iter().map(|s| log::system_action(s, avatar)).collect::<Result<Vec<_>, _>>()?;
+        self.admitted.entry(a.tick.0).or_default().0.extend(system);
+        for i in a.inputs {
+            let t = i.tick.0;
+            self.admitted.entry(t).or_default().1.push(log::pending_input(i));
+        }
+        Ok(())
+    }
+
+    fn publish(&mut self, m: ServerMessage) {
+        match m {
+            ServerMessage::Events(b) => {
+                self.newest = self.newest.max(Some(b.tick));
+                let t = self.published.entry(b.tick.0).or_default();
+                t.0.extend(b.events.into_iter().map(|e| (e.key(), e)));
+            }
+            ServerMessage::Corrections(c) => {
+                let t = self.published.entry(c.tick.0).or_default();
+                for e in &c.retracted {
+                    t.0.remove(&e.key());
+                }
+                t.0.extend(c.amended.into_iter().chain(c.added).map(|e| (e.key(), e)));
+                t.1 = c.revision;
+            }
+            _ => {}
+        }
+    }
+}
+
+impl TickLoop {
+    /// Follows the primary until it goes (then takes over and returns `true`) or the stop flag
+    /// is set (`false`).
+    pub(super) fn follow(
+        &mut self,
+        f: Follower,
+        stop: &AtomicBool,
+        zs: &zenoh::Session,
+        control: &Receiver<Control>,
+    ) -> bool {
+        let avatar_rule = self.avatar.clone();
+        let avatar = avatar_rule.as_ref().map(|a| (a.class, &a.shape));
+        let mut synced = false;
+        let mut early: VecDeque<LogTick> = VecDeque::new();
+        let mut pending = Unconfirmed::default();
+        let mut last_log: Option<Tick> = None;
+        let mut primary_up = false;
+        let mut asked: Option<Instant> = None;
+        let mut lost_seen = 0;
+        let mut last_status = Instant::now();
+        let (verbose, world) = (self.opts.verbose, self.world.clone());
+        let say = move |msg: String| {
+            if verbose {
+                eprintln!("  standby {world}: {msg}");
+            }
+        };
+        say("waiting for the primary".into());
+        loop {
+            if stop.load(Ordering::SeqCst) {
+                return false;
+            }
+            self.presence(control);
+            let lost = f.lost.load(Ordering::Relaxed);
+            if lost != lost_seen {
+                lost_seen = lost;
+                if synced {
+                    say(format!("{lost} followed messages lost so far: starting again from a checkpoint"));
+                }
+                synced = false;
+            }
+            if !synced && primary_up && asked.is_none_or(|t| t.elapsed() > Duration::from_secs(1)) {
+                asked = Some(Instant::now());
+                match self.restore(zs) {
+                    Ok(()) => {
+                        synced = true;
+                        say(format!("following from the checkpoint of tick {}", self.session.now().0));
+                        // The log entries that came while the checkpoint was on its way.
+                        for l in early.drain(..) {
+                            if !self.follow_tick(l, avatar, &mut synced) {
+                                break;
+                            }
+                        }
+                    }
+                    Err(e) => say(format!("no checkpoint yet: {e}")),
+                }
+            }
+            if self.opts.verbose && synced && last_status.elapsed() >= Duration::from_secs(1) {
+                last_status = Instant::now();
+                eprintln!(
+                    "  standby {}: confirmed tick {} followed ({} ticks, {} hashes differed), {} clients present",
+                    self.world,
+                    self.session.now().0.saturating_sub(1),
+                    self.summary.followed_ticks,
+                    self.summary.desyncs,
+                    self.clients.values().filter(|c| c.present).count()
+                );
+            }
+            match f.rx.recv_timeout(Duration::from_millis(20)) {
+                Ok(Followed::Log(l)) => {
+                    last_log = Some(l.tick);
+                    pending.confirmed(l.tick);
+                    if synced {
+                        self.follow_tick(l, avatar, &mut synced);
+                    } else {
+                        if early.len() >= EARLY_LOG {
+                            early.pop_front();
+                        }
+                        early.push_back(l);
+                    }
+                }
+                Ok(Followed::Admitted(a)) => {
+                    if let Err(e) = pending.admit(a, avatar) {
+                        say(e);
+                    }
+                }
+                Ok(Followed::Published(m)) => pending.publish(m),
+                Ok(Followed::PrimaryUp) => primary_up = true,
+                Ok(Followed::PrimaryDown) => {
+                    primary_up = false;
+                    if synced {
+                        self.take_over(pending, last_log);
+                        return true;
+                    }
+                    say("the primary went before this standby had its state: waiting for another".into());
+                }
+                Err(RecvTimeoutError::Timeout) => {}
+                Err(RecvTimeoutError::Disconnected) => return false,
+            }
+        }
+    }
+
+    /// Asks the primary for its checkpoint and continues from it.
+    fn restore(&mut self, zs: &zenoh::Session) -> Result<(), String> {
+        let selector = format!("{}?encoding=msgpack", keys::QUERY_CHECKPOINT.key(&self.world, None));
+        let replies = zs.get(selector).timeout(Duration::from_secs(5)).wait().map_err(|e| e.to_string())?;
+        let reply = replies.recv().map_err(|_| "no server answered".to_string())?;
+        let sample = reply.result().map_err(|e| format!("the server answered with an error: {e:?}"))?;
+        let bytes = sample.payload().to_bytes();
+        let c = match decode::<ServerMessage>(&bytes, Encoding::MsgPack, MAX_CHECKPOINT_BYTES) {
+            Ok(ServerMessage::Checkpoint(c)) => c,
+            Ok(ServerMessage::QueryError(e)) => return Err(e.detail),
+            Ok(_) => return Err("the checkpoint query was answered with another message".into()),
+            Err(e) => return Err(e.to_string()),
+        };
+        let cfg = self.session.config().clone();
+        let plan = crate::sim::Plan::for_world(self.session.world());
+        let session = Session::restore(self.session.world(), &c, plan, cfg)?;
+        self.session = session;
+        for cl in &c.clients {
+            if let Some(avatar) = cl.avatar {
+                let state = self.new_client(cl.client, false, None, self.opts.encoding);
+                self.clients.entry(cl.client).or_insert(state).avatar = Some(avatar);
+            }
+        }
+        Ok(())
+    }
+
+    /// Steps one confirmed tick of the log; a gap or an undecodable entry clears `synced`.
+    /// Returns whether it was stepped.
+    fn follow_tick(&mut self, l: LogTick, avatar: log::AvatarShape<'_>, synced: &mut bool) -> bool {
+        let now = self.session.now();
+        if l.tick < now {
+            return true; // before the checkpoint
+        }
+        if l.tick > now {
+            *synced = false; // a gap: start again from a checkpoint
+            return false;
+        }
+        let t = match ConfirmedTick::from_wire(l, avatar) {
+            Ok(t) => t,
+            Err(e) => {
+                eprintln!("  standby {}: {e}", self.world);
+                *synced = false;
+                return false;
+            }
+        };
+        let removed: Vec<_> = t
+            .system
+            .iter()
+            .filter_map(|a| match a {
+                SystemAction::Remove { entity } => Some(*entity),
+                SystemAction::SpawnAvatar { .. } => None,
+            })
+            .collect();
+        if let Err(e) = self.session.follow(t.tick, t.system, t.inputs) {
+            eprintln!("  standby {}: {e}", self.world);
+            *synced = false;
+            return false;
+        }
+        let adv = self.session.advance();
+        self.summary.ticks += 1;
+        self.summary.followed_ticks += 1;
+        if self.session.world().state_hash() != t.state_hash {
+            self.summary.desyncs += 1;
+            eprintln!(
+                "  standby {}: tick {} ends with another state hash than the primary's: is the scene file the same?",
+                self.world, t.tick.0
+            );
+        }
+        self.track_avatars(&adv, &removed);
+        true
+    }
+
+    /// Keeps the clients' avatars as the log spawns and removes them.
+    fn track_avatars(&mut self, adv: &Advance, removed: &[impact_protocol::EntityId]) {
+        for (client, entity) in &adv.spawned {
+            let state = self.new_client(*client, false, None, self.opts.encoding);
+            self.clients.entry(*client).or_insert(state).avatar = Some(*entity);
+        }
+        for entity in removed {
+            let gone: Vec<_> =
+                self.clients.iter().filter(|(_, s)| s.avatar == Some(*entity)).map(|(c, _)| *c).collect();
+            for c in gone {
+                self.clients.remove(&c);
+                self.session.forget_client(c);
+            }
+        }
+    }
+
+    /// The primary is gone: re-simulate its unconfirmed ticks with every input it acked, and
+    /// publish them as this server's.
+    fn take_over(&mut self, mut pending: Unconfirmed, last_log: Option<Tick>) {
+        let from = self.session.now();
+        // Followed without a gap: every tick before the present one is confirmed.
+        debug_assert!(last_log.is_none_or(|t| t.0 + 1 == from.0));
+        self.confirmed_upto = from.0.checked_sub(1).map(Tick);
+        // The primary had simulated up to its newest tick: the last confirmed one plus the window,
+        // or the newest it said anything about.
+        let window = self.session.config().window_ticks;
+        let by_window = self.confirmed_upto.map(|c| Tick(c.0 + window));
+        let to = by_window.max(pending.newest).unwrap_or(from).max(from);
+        for k in from.0..=to.0 {
+            let (system, inputs) = pending.admitted.remove(&k).unwrap_or_default();
+            self.summary.reapplied_inputs += inputs.len() as u64;
+            if let Err(e) = self.session.follow(Tick(k), system, inputs) {
+                eprintln!("  standby {}: {e}", self.world);
+            }
+            let mut adv = self.session.advance();
+            self.summary.ticks += 1;
+            self.summary.caught_up_ticks += 1;
+            if let Some((events, revision)) = pending.published.remove(&k) {
+                // Clients hold the primary's events for this tick: correct them, if need be.
+                adv.events.clear();
+                adv.corrections = self.session.adopt(Tick(k), events.into_values().collect(), revision);
+            }
+            self.publish(adv);
+        }
+        // Inputs acked for ticks still ahead.
+        // (Server actions apply at the tick they were queued at, all simulated above.)
+        for (k, (_, inputs)) in std::mem::take(&mut pending.admitted) {
+            self.summary.reapplied_inputs += inputs.len() as u64;
+            if let Err(e) = self.session.follow(Tick(k), Vec::new(), inputs) {
+                eprintln!("  standby {}: {e}", self.world);
+            }
+        }
+        self.summary.promoted_at = Some(self.session.now());
+        eprintln!(
+            "impact-server: world {}: the primary is gone; took over at tick {} (confirmed up to {}, {} ticks re-simulated, {} acked inputs re-applied)",
+            self.world,
+            self.session.now().0,
+            self.confirmed_upto.map_or(-1, |t| i64::from(t.0)),
+            self.summary.caught_up_ticks,
+            self.summary.reapplied_inputs
+        );
+    }
+
+    /// After a takeover: every present client is welcomed again (its avatar and the new tick),
+    /// a present client with no avatar joins, and an absent one starts its grace period.
+    pub(super) fn reanchor(&mut self) {
+        let now = self.session.now();
+        let clients: Vec<_> = self.clients.iter().map(|(c, s)| (*c, s.present, s.avatar)).collect();
+        for (client, present, avatar) in clients {
+            match (present, avatar) {
+                (true, Some(a)) => self.welcome(client, Some(a)),
+                (true, None) => {
+                    self.clients.remove(&client);
+                    self.join(client);
+                }
+                (false, _) => {
+                    if let Some(s) = self.clients.get_mut(&client) {
+                        s.leave_at = Some(now.0 + self.opts.grace_ticks);
+                    }
+                }
+            }
+        }
+    }
+}
