@@ -183,6 +183,32 @@ struct Player {
     ack_ticks: BTreeMap<u32, Tick>,
 }
 
+/// What the failover test saw on the log and confirmed streams.
+#[derive(Default)]
+struct Published {
+    log_ticks: Vec<(Tick, Instant)>,
+    logged_inputs: BTreeMap<(u32, u32), u32>,
+    confirmed_ticks: Vec<Tick>,
+}
+
+impl Published {
+    fn take(&mut self, log: &Tap, confirmed: &Tap) {
+        for (_, m, at) in log.drain() {
+            if let ServerMessage::Log(l) = m {
+                for i in &l.inputs {
+                    *self.logged_inputs.entry((i.client.0, i.seq)).or_default() += 1;
+                }
+                self.log_ticks.push((l.tick, at));
+            }
+        }
+        for (_, m, _) in confirmed.drain() {
+            if let ServerMessage::Confirmed(b) = m {
+                self.confirmed_ticks.push(b.tick);
+            }
+        }
+    }
+}
+
 /// A primary and a standby for one world behind a router; clients keep playing while the
 /// primary is killed with SIGKILL. The standby takes over within 2 s; the confirmed stream and
 /// the input log have every tick exactly once, with no gap; every acked input is in the log,
@@ -225,9 +251,7 @@ fn a_standby_takes_over_from_a_killed_primary() {
 
     let started = Instant::now();
     let mut killed: Option<Instant> = None;
-    let mut log_ticks: Vec<(Tick, Instant)> = Vec::new();
-    let mut logged_inputs: BTreeMap<(u32, u32), u32> = BTreeMap::new();
-    let mut confirmed_ticks: Vec<Tick> = Vec::new();
+    let mut seen = Published::default();
     let mut rng = 7u64;
     let mut rejects = Vec::new();
     while started.elapsed() < Duration::from_secs(9) {
@@ -256,19 +280,7 @@ fn a_standby_takes_over_from_a_killed_primary() {
                 _ => {}
             }
         }
-        for (_, m, at) in log.drain() {
-            if let ServerMessage::Log(l) = m {
-                for i in &l.inputs {
-                    *logged_inputs.entry((i.client.0, i.seq)).or_default() += 1;
-                }
-                log_ticks.push((l.tick, at));
-            }
-        }
-        for (_, m, _) in confirmed.drain() {
-            if let ServerMessage::Confirmed(b) = m {
-                confirmed_ticks.push(b.tick);
-            }
-        }
+        seen.take(&log, &confirmed);
         // Each player moves its avatar five times a second, stamped a few ticks ahead.
         for p in &mut players {
             let (Some(avatar), Some((tick, at))) = (p.avatar, p.tick) else { continue };
@@ -295,32 +307,20 @@ fn a_standby_takes_over_from_a_killed_primary() {
     let out = standby.output();
     assert!(status.is_some_and(|x| x.success()), "the standby did not stop cleanly:\n{out}");
     std::thread::sleep(Duration::from_millis(500));
-    for (_, m, at) in log.drain() {
-        if let ServerMessage::Log(l) = m {
-            for i in &l.inputs {
-                *logged_inputs.entry((i.client.0, i.seq)).or_default() += 1;
-            }
-            log_ticks.push((l.tick, at));
-        }
-    }
-    for (_, m, _) in confirmed.drain() {
-        if let ServerMessage::Confirmed(b) = m {
-            confirmed_ticks.push(b.tick);
-        }
-    }
+    seen.take(&log, &confirmed);
     let killed = killed.expect("the primary was killed");
 
     // The takeover: logged, hashes equal, quick.
     assert!(out.contains("the primary is gone; took over at tick"), "the standby never took over:\n{out}");
     assert!(out.contains("(0 hashes differed)"), "the standby's state differed from the primary's:\n{out}");
-    let first_after = log_ticks.iter().find(|(_, at)| *at > killed).map(|(_, at)| *at - killed);
+    let first_after = seen.log_ticks.iter().find(|(_, at)| *at > killed).map(|(_, at)| *at - killed);
     let gap = first_after.expect("no tick was published after the kill");
     eprintln!("failover: first tick from the standby {:.0} ms after SIGKILL", gap.as_secs_f64() * 1e3);
     assert!(gap < Duration::from_secs(2), "the standby published its first tick {gap:?} after the kill");
 
     // Every confirmed tick exactly once, with no gap, across the takeover.
     for (name, ticks) in
-        [("log", log_ticks.iter().map(|(t, _)| *t).collect::<Vec<_>>()), ("confirmed", confirmed_ticks)]
+        [("log", seen.log_ticks.iter().map(|(t, _)| *t).collect::<Vec<_>>()), ("confirmed", seen.confirmed_ticks)]
     {
         assert!(ticks.len() > 400, "only {} {name} ticks", ticks.len());
         for w in ticks.windows(2) {
@@ -328,7 +328,7 @@ fn a_standby_takes_over_from_a_killed_primary() {
         }
     }
     // Every acked input is in the log exactly once (acks of ticks the log covered).
-    let last_logged = log_ticks.last().map(|(t, _)| *t).expect("log");
+    let last_logged = seen.log_ticks.last().map(|(t, _)| *t).expect("log");
     let mut acked = 0;
     for p in &players {
         assert!(p.welcomes >= 2, "client {} was welcomed {} times: no re-anchor after the takeover", p.id, p.welcomes);
@@ -336,11 +336,11 @@ fn a_standby_takes_over_from_a_killed_primary() {
             if p.ack_ticks[seq] <= last_logged {
                 acked += 1;
                 assert_eq!(
-                    logged_inputs.get(&(p.id.0, *seq)),
+                    seen.logged_inputs.get(&(p.id.0, *seq)),
                     Some(&1),
                     "client {} seq {seq}: acked but logged {:?} times",
                     p.id,
-                    logged_inputs.get(&(p.id.0, *seq))
+                    seen.logged_inputs.get(&(p.id.0, *seq))
                 );
             }
         }
