@@ -7,10 +7,12 @@
 //! - [`load`]: the load generator behind `impact-sim`.
 //! - [`timing`]: how a client times its inputs (behind or ahead) and the margins it is told.
 //! - [`report`]: its report (human summary, JSON, SVG histogram).
+//! - [`process`]: real processes (servers, zenohd routers) for deployment tests and benchmarks.
 
 pub mod delay;
 pub mod load;
 pub mod net;
+pub mod process;
 pub mod report;
 pub mod timing;
 pub mod view;
