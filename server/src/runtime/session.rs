@@ -4,6 +4,9 @@
 use super::error::RuntimeError;
 use std::path::Path;
 
+/// The lease a server announces, ms (keep-alives go four times per lease).
+pub const SERVER_LEASE_MS: &str = "1500";
+
 /// The Zenoh configuration for a process of impact: from `file` if given (used as is, except
 /// that `listen`/`connect` given on the command line are added), otherwise a peer that listens
 /// on `listen`, connects to `connect`, and does no multicast scouting (so a test or a demo never
@@ -16,6 +19,10 @@ pub fn zenoh_config(file: Option<&Path>, listen: &[String], connect: &[String]) 
             let mut c = zenoh::Config::default();
             c.insert_json5("mode", "\"peer\"").map_err(|e| err("mode", e))?;
             c.insert_json5("scouting/multicast/enabled", "false").map_err(|e| err("scouting", e))?;
+            // A server that stops answering (its host hung or cut off) is declared gone by its
+            // peers and routers after this lease, and a standby takes over: 1.5 s, not Zenoh's 10 s.
+            // (A process that dies closes its sockets and is seen gone at once.)
+            c.insert_json5("transport/link/tx/lease", SERVER_LEASE_MS).map_err(|e| err("lease", e))?;
             c
         }
     };
