@@ -360,7 +360,7 @@ pub struct BodyState {
 pub struct WorldSnapshot {
     /// The tick.
     pub tick: Tick,
-    /// The deterministic state hash of the world at that tick (64-bit FNV-1a over the state).
+    /// The deterministic state hash of the world at that tick (64 bits, over the exact bits of the state).
     pub state_hash: u64,
     /// Every body, by ascending entity id.
     pub bodies: Vec<BodyState>,

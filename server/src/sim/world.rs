@@ -456,7 +456,7 @@ impl World {
     /// A deterministic 64-bit hash of the state (FNV-1a over the exact bits of every field that
     /// can change). Equal states hash equal on every platform.
     pub fn state_hash(&self) -> u64 {
-        let mut h = Fnv::new();
+        let mut h = StateHasher::new();
         h.u64(u64::from(self.tick.0));
         h.u64(u64::from(self.next_entity));
         let b = &self.bodies;
@@ -487,21 +487,20 @@ impl World {
     }
 }
 
-/// 64-bit FNV-1a.
+/// The 64-bit state hash: words mixed in by rotate, xor and multiply (FxHasher's step).
 #[derive(Debug)]
-pub struct Fnv(u64);
+pub struct StateHasher(u64);
 
-impl Fnv {
+impl StateHasher {
     /// A fresh hasher.
-    pub fn new() -> Fnv {
-        Fnv(0xcbf2_9ce4_8422_2325)
+    pub fn new() -> StateHasher {
+        StateHasher(0xcbf2_9ce4_8422_2325)
     }
-    /// Mixes in a u64 (little-endian bytes).
+    /// Mixes in a u64, a word at a time (rotate, xor, multiply, as rustc's FxHasher): a
+    /// byte at a time (FNV-1a) took 10 % of the tick at 1,000 clients once the input log
+    /// hashed every confirmed tick.
     pub fn u64(&mut self, v: u64) {
-        for byte in v.to_le_bytes() {
-            self.0 ^= u64::from(byte);
-            self.0 = self.0.wrapping_mul(0x100_0000_01b3);
-        }
+        self.0 = (self.0.rotate_left(5) ^ v).wrapping_mul(0x517c_c1b7_2722_0a95);
     }
     /// Mixes in the exact bits of an f64.
     pub fn f64(&mut self, v: f64) {
@@ -513,9 +512,9 @@ impl Fnv {
     }
 }
 
-impl Default for Fnv {
+impl Default for StateHasher {
     fn default() -> Self {
-        Fnv::new()
+        StateHasher::new()
     }
 }
 
