@@ -4,6 +4,7 @@
 //!
 //! - [`ids`]: typed identifiers with explicit sizes on the wire (`u32`, never `usize`).
 //! - [`message`]: one enum per direction, [`ClientMessage`] and [`ServerMessage`].
+//! - [`action`]: what a client can do ([`Action`]) and where a ray hit ([`RayHit`]).
 //! - [`event`]: the [`CollisionEvent`] the server publishes.
 //! - [`keys`]: every Zenoh key expression, built in one place under `impact/v1/{world}`.
 //! - [`codec`]: [`encode`] and [`decode`], MessagePack by default, JSON on request.
@@ -12,6 +13,7 @@
 //!
 //! `PROTOCOL.md` at the repository root documents all of it for a client in another language.
 
+pub mod action;
 pub mod codec;
 pub mod error;
 pub mod event;

@@ -12,8 +12,8 @@
 //! A standby that joins late starts from a [`Checkpoint`] (`impact/v1/{world}/query/checkpoint`):
 //! the complete confirmed state, not the summary a state query returns.
 
+use crate::action::{Action, RayHit};
 use crate::ids::{ClientId, EntityId, Tick};
-use crate::message::{Action, RayHit};
 use serde::{Deserialize, Serialize};
 
 /// One input as the server applied it.
