@@ -11,7 +11,7 @@ use impact_server::scene::Scene;
 use impact_server::sim::Plan;
 
 mod common;
-use common::range;
+use common::{bat_input as bat, range};
 
 fn new_session(scene: &Scene) -> Session {
     Session::new(scene.world.clone(), Plan::for_world(&scene.world), RollbackConfig::for_world(&scene.world))
@@ -50,17 +50,6 @@ fn follow(s: &mut Session, log: &[ConfirmedTick], scene: &Scene) -> Vec<u32> {
         }
     }
     differ
-}
-
-fn bat(seq: u32, tick: u32, vx: f64) -> ClientInput {
-    // In breakout, entity 6 is the bat, owned by client 1.
-    ClientInput {
-        view_tick: None,
-        client: ClientId(1),
-        seq,
-        tick: Tick(tick),
-        actions: vec![Action::SetVelocity { entity: EntityId(6), velocity: [vx, 2.0, 0.0] }],
-    }
 }
 
 /// Breakout with bat inputs arriving on time, early and up to 12 ticks late.

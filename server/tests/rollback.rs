@@ -13,24 +13,13 @@ use impact_server::sim::{Plan, TickInput};
 use std::collections::BTreeMap;
 
 mod common;
-use common::range;
+use common::{bat_input, range};
 
 fn session(name: &str, cfg: impl FnOnce(&mut RollbackConfig)) -> Session {
     let scene = Scene::load(&Scene::bundled_path(name)).unwrap();
     let mut c = RollbackConfig::for_world(&scene.world);
     cfg(&mut c);
     Session::new(scene.world.clone(), Plan::for_world(&scene.world), c)
-}
-
-fn bat_input(seq: u32, tick: u32, vx: f64) -> ClientInput {
-    // In breakout, entity 6 is the bat, owned by client 1.
-    ClientInput {
-        view_tick: None,
-        client: ClientId(1),
-        seq,
-        tick: Tick(tick),
-        actions: vec![Action::SetVelocity { entity: EntityId(6), velocity: [vx, 2.0, 0.0] }],
-    }
 }
 
 /// Runs `s` to `until`, submitting each input when the session reaches its `arrive` tick, and

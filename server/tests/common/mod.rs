@@ -1,5 +1,6 @@
 //! Scenes shared by the core's tests.
 
+use impact_protocol::{Action, ClientId, ClientInput, EntityId, Tick};
 use impact_server::scene::Scene;
 
 /// A shooter (entity 0, client 1) at the origin and a target (entity 1) crossing its line of
@@ -32,4 +33,15 @@ position = [20.0, 0.0, -12.5]
 velocity = [0.0, 0.0, 8.0]
 "#;
     Scene::parse(text, "<range>").unwrap()
+}
+
+/// In breakout, entity 6 is the bat, owned by client 1: input `seq` for `tick` sets its velocity.
+pub fn bat_input(seq: u32, tick: u32, vx: f64) -> ClientInput {
+    ClientInput {
+        view_tick: None,
+        client: ClientId(1),
+        seq,
+        tick: Tick(tick),
+        actions: vec![Action::SetVelocity { entity: EntityId(6), velocity: [vx, 2.0, 0.0] }],
+    }
 }
