@@ -162,7 +162,6 @@ impl TickLoop {
         let mut synced = false;
         let mut early: VecDeque<LogTick> = VecDeque::new();
         let mut pending = Unconfirmed::default();
-        let mut last_log: Option<Tick> = None;
         let mut primary_up = false;
         let mut asked: Option<Instant> = None;
         let mut lost_seen = 0;
@@ -216,7 +215,6 @@ impl TickLoop {
             }
             match f.rx.recv_timeout(Duration::from_millis(20)) {
                 Ok(Followed::Log(l)) => {
-                    last_log = Some(l.tick);
                     pending.confirmed(l.tick);
                     if synced {
                         self.follow_tick(l, avatar, &mut synced);
@@ -237,7 +235,7 @@ impl TickLoop {
                 Ok(Followed::PrimaryDown) => {
                     primary_up = false;
                     if synced {
-                        self.take_over(pending, last_log);
+                        self.take_over(pending);
                         return true;
                     }
                     say("the primary went before this standby had its state: waiting for another".into());
@@ -338,10 +336,9 @@ impl TickLoop {
 
     /// The primary is gone: re-simulate its unconfirmed ticks with every input it acked, and
     /// publish them as this server's.
-    fn take_over(&mut self, mut pending: Unconfirmed, last_log: Option<Tick>) {
+    fn take_over(&mut self, mut pending: Unconfirmed) {
         let from = self.session.now();
         // Followed without a gap: every tick before the present one is confirmed.
-        debug_assert!(last_log.is_none_or(|t| t.0 + 1 == from.0));
         self.confirmed_upto = from.0.checked_sub(1).map(Tick);
         // The primary had simulated up to its newest tick: the last confirmed one plus the window,
         // or the newest it said anything about.
