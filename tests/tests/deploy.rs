@@ -458,8 +458,8 @@ fn router_server_and_clients_in_separate_network_namespaces() {
         .expect("bash");
     assert!(!direct.status.success(), "the client namespace reached the server directly");
 
-    let sim = server_binary().with_file_name("impact-sim");
-    assert!(sim.exists(), "{} is missing: `cargo build -p impact-client-sim`", sim.display());
+    // Built by `cargo test --workspace` for impact-client-sim's own integration tests.
+    let sim = common::process::binary("impact-sim");
     let out = inside(&c, &sim)
         .args(["--connect", "tcp/10.77.2.1:7447", "--zenoh-mode", "client", "--world", "arena"])
         .args(["--clients", "40", "--duration", "5s", "--latency-ms", "20", "--jitter-ms", "5"])

@@ -24,8 +24,8 @@ struct Args {
     /// World name.
     #[arg(long, default_value = "arena")]
     world: String,
-    /// Number of clients.
-    #[arg(long, default_value_t = 100)]
+    /// Number of clients (at least 1).
+    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u32).range(1..))]
     clients: u32,
     /// Id of the first client (run several sims side by side with different ranges).
     #[arg(long, default_value_t = 1000)]
