@@ -57,14 +57,21 @@ pub struct Report {
     pub views_matched: u64,
     /// Confirmed ticks whose view did not.
     pub views_mismatched: u64,
-    /// The server's last reported tick time p99, ms.
+    /// The server's tick time over the load, ms: percentiles of every tick its stats messages
+    /// reported while the clients ran.
+    pub server_tick_ms_p50: f64,
+    /// 99th percentile.
     pub server_tick_ms_p99: f64,
+    /// Longest.
+    pub server_tick_ms_max: f64,
+    /// Ticks those percentiles are over.
+    pub server_ticks_measured: u64,
+    /// State stream frames the clients received over the load (`--state`).
+    pub state_frames: u64,
+    /// State stream bytes per client per second over the load (`--state`).
+    pub state_bytes_per_client_s: f64,
     /// The server's last reported overruns.
     pub server_overruns: u64,
-    /// The median of the server's per-second tick p50 over the load, ms.
-    pub server_tick_ms_p50_median_second: f64,
-    /// The worst of the server's per-second tick p99 over the load, ms.
-    pub server_tick_ms_p99_worst_second: f64,
     /// Rollbacks the server reported over the load.
     pub server_rollbacks: u64,
     /// Per second.
@@ -169,12 +176,21 @@ impl std::fmt::Display for Report {
             )?;
         }
         writeln!(f, "  views    {} confirmed ticks matched, {} differed", self.views_matched, self.views_mismatched)?;
+        if self.state_frames > 0 {
+            writeln!(
+                f,
+                "  state    {} frames, {:.0} bytes per client per second",
+                self.state_frames, self.state_bytes_per_client_s
+            )?;
+        }
         write!(
             f,
-            "  server   under load: tick p50 {:.3} ms (median second), p99 {:.3} ms (worst second), rollbacks {:.1}/s \
+            "  server   under load: tick p50 {:.3} p99 {:.3} max {:.3} ms over {} ticks, rollbacks {:.1}/s \
              (deepest {}) | overruns {} | client clocks resynced {}",
-            self.server_tick_ms_p50_median_second,
-            self.server_tick_ms_p99_worst_second,
+            self.server_tick_ms_p50,
+            self.server_tick_ms_p99,
+            self.server_tick_ms_max,
+            self.server_ticks_measured,
             self.server_rollbacks_per_s,
             self.server_rollback_depth_max,
             self.server_overruns,

@@ -7,7 +7,8 @@ then plays for a second in ahead mode (PROTOCOL.md, "Timing"): it keeps a clock 
 tick (its view tick), stamps each input `view_tick + lead` with `view_tick` alongside, takes the
 lead the acks recommend (the first outright, later ones by time dilation), and prints each ack's
 arrival margin and the first event batches it sees. Exits 0 when it got the welcome, acks, at
-least one event batch, and an input sent after the first recommendation arrived on time.
+least one event batch, an input sent after the first recommendation arrived on time, and its own
+avatar in its state stream (PROTOCOL.md, "State streams").
 
     pip install eclipse-zenoh msgpack
     python3 examples/python/client.py --connect tcp/127.0.0.1:7447 --world arena
@@ -90,7 +91,41 @@ def main():
         if state["ack"] and state["batches"] >= 3:
             done.set()
 
+    # The state stream (PROTOCOL.md, "State streams"): the bodies near our avatar. Keep a map
+    # entity -> motion; full frames replace it, deltas patch it, and after a gap in the frame
+    # numbers we wait for the next full frame.
+    stream = {"bodies": {}, "info": {}, "frame": None, "synced": False, "frames": 0, "gaps": 0, "printed": 0}
+
+    def on_state(sample):
+        f = decode(sample)
+        stream["frames"] += 1
+        if f["full"]:
+            stream["bodies"].clear()
+            stream["info"].clear()
+            stream["synced"] = True
+        elif stream["frame"] is None or f["frame"] != (stream["frame"] + 1) % 2**32:
+            stream["synced"] = False
+            stream["gaps"] += 1
+        stream["frame"] = f["frame"]
+        if not stream["synced"]:
+            return
+        for e in f["left"]:
+            stream["bodies"].pop(e, None)
+            stream["info"].pop(e, None)
+        for info in f["entered"]:
+            stream["info"][info["entity"]] = info
+        for entity, position, velocity, asleep in f["moved"]:
+            stream["bodies"][entity] = (position, velocity, asleep)
+        if f["full"] and stream["printed"] < 2:
+            stream["printed"] += 1
+            classes = {}
+            for info in stream["info"].values():
+                classes[info["class"]] = classes.get(info["class"], 0) + 1
+            print(f"state frame {f['frame']} (tick {f['tick']}, full): {len(stream['bodies'])} bodies within "
+                  f"the area around {[round(x, 1) for x in f['centre']]}: {classes}, {f['deferred']} deferred by the budget")
+
     ack_sub = session.declare_subscriber(f"{prefix}/client/{me}/ack", on_ack)
+    state_sub = session.declare_subscriber(f"{prefix}/client/{me}/state", on_state)
     ev_sub = session.declare_subscriber(f"{prefix}/events", on_events)
     token = session.liveliness().declare_token(f"{prefix}/presence/{me}")
 
@@ -128,12 +163,17 @@ def main():
 
     done.wait(max(0.0, deadline - time.time()))
     time.sleep(0.3)  # the last acks
-    ok = state["ack"] is not None and state["batches"] > 0 and state["on_time_after_lead"] > 0
+    # The state stream showed our own avatar (the nearest body there is).
+    seen_self = stream["synced"] and w["avatar"] in stream["bodies"]
+    ok = state["ack"] is not None and state["batches"] > 0 and state["on_time_after_lead"] > 0 and seen_self
     print(f"{'ok' if ok else 'FAILED'}: ack {'received' if state['ack'] else 'missing'}, "
           f"{state['batches']} event batches ({state['events']} events), "
-          f"{state['on_time_after_lead']} of {len(sent_with_lead)} inputs sent with a lead arrived on time")
+          f"{state['on_time_after_lead']} of {len(sent_with_lead)} inputs sent with a lead arrived on time, "
+          f"{stream['frames']} state frames ({len(stream['bodies'])} bodies held, our avatar "
+          f"{'among them' if seen_self else 'missing'}, {stream['gaps']} gaps)")
     token.undeclare()
     ack_sub.undeclare()
+    state_sub.undeclare()
     ev_sub.undeclare()
     session.close()
     return 0 if ok else 1

@@ -61,10 +61,34 @@ fn main() {
         margin_ticks: 2,
         lead_ticks: 12,
     });
+    // A client's state stream: a delta in which a ball entered its area, its own avatar moved,
+    // and a bolt left.
+    let state = ServerMessage::State(StateFrame {
+        tick: Tick(1200),
+        frame: 61,
+        full: false,
+        entered: vec![BodyInfo {
+            entity: EntityId(3),
+            class: "ball".into(),
+            owner: None,
+            shape: BodyShape::Sphere,
+            half_extents_m: [0.5, 0.5, 0.5],
+            offset_m: [0.0, 0.0, 0.0],
+            fixed: false,
+        }],
+        moved: vec![
+            BodyMotion(EntityId(3), [10.25, 0.5, -4.0], [-3.5, 0.0, 0.0], false),
+            BodyMotion(EntityId(19), [9.0, 1.0, -4.0], [1.5, 0.0, -2.0], false),
+        ],
+        left: vec![EntityId(2071)],
+        deferred: 0,
+        centre: Some([9.0, 1.0, -4.0]),
+    });
     print("client -> server: input", &input);
     print("server -> client: ack", &ack);
     print("server -> client: events", &events);
     print("server -> client: reject", &reject);
+    print("server -> client: state", &state);
 }
 
 fn print<T: serde::Serialize + Validate>(title: &str, msg: &T) {

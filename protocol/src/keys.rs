@@ -49,8 +49,14 @@ pub const SERVER: KeyPattern = KeyPattern { name: "server", pattern: "impact/v1/
 pub const QUERY_CHECKPOINT: KeyPattern =
     KeyPattern { name: "query_checkpoint", pattern: "impact/v1/{world}/query/checkpoint" };
 
+/// Every body's state at `--state-hz`, full frames and deltas ([`StateFrame`](crate::StateFrame)).
+pub const STATE: KeyPattern = KeyPattern { name: "state", pattern: "impact/v1/{world}/state" };
+/// The bodies near one client's avatar, within its byte budget.
+pub const CLIENT_STATE: KeyPattern =
+    KeyPattern { name: "client_state", pattern: "impact/v1/{world}/client/{client}/state" };
+
 /// Every key impact uses.
-pub const PATTERNS: [KeyPattern; 14] = [
+pub const PATTERNS: [KeyPattern; 16] = [
     INPUT,
     EVENTS,
     CORRECTIONS,
@@ -65,6 +71,8 @@ pub const PATTERNS: [KeyPattern; 14] = [
     LOG_ADMITTED,
     SERVER,
     QUERY_CHECKPOINT,
+    STATE,
+    CLIENT_STATE,
 ];
 
 impl KeyPattern {

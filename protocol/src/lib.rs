@@ -22,6 +22,7 @@ pub mod keys;
 pub mod limits;
 pub mod log;
 pub mod message;
+pub mod state;
 pub mod validate;
 
 pub use codec::{decode, decode_unchecked, encode, input_header, Encoding};
@@ -33,4 +34,5 @@ pub use message::{
     Action, BodyState, ClientInput, ClientMessage, CorrectionBatch, EventBatch, EventHistory, InputAck, InputReject,
     QueryError, RayHit, RayResult, RejectReason, ServerMessage, ServerStats, ShapeSpec, Welcome, WorldSnapshot,
 };
+pub use state::{BodyInfo, BodyMotion, BodyShape, StateFrame};
 pub use validate::Validate;

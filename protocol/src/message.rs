@@ -71,6 +71,8 @@ pub enum ServerMessage {
     Admitted(crate::log::Admitted),
     /// The complete confirmed state (answer to the checkpoint query).
     Checkpoint(crate::log::Checkpoint),
+    /// A frame of a state stream (`state`, `client/{id}/state`).
+    State(crate::state::StateFrame),
 }
 
 /// The events of one tick.
@@ -331,4 +333,15 @@ pub struct ServerStats {
     pub events_per_s: f64,
     /// Deepest the ingress queue got in the period.
     pub queue_depth_max: u32,
+    /// Every tick's duration in the period, ms, in tick order: a tool that gathers them has
+    /// the exact distribution over any span (`impact-sim` reports its whole run from them).
+    #[serde(default)]
+    pub tick_ms: Vec<f32>,
+    /// Mean time per core step of each stage in the period, ms, in tick order
+    /// (`[["broadphase", 0.12], ...]`); re-simulations count as steps.
+    #[serde(default)]
+    pub stage_ms: Vec<(String, f64)>,
+    /// Clients present.
+    #[serde(default)]
+    pub clients: u32,
 }

@@ -198,6 +198,31 @@ impl Validate for ServerMessage {
                 ] {
                     finite(x, || name.into())?;
                 }
+                for (i, t) in s.tick_ms.iter().enumerate() {
+                    finite(f64::from(*t), || format!("tick_ms[{i}]"))?;
+                }
+                for (i, (name, t)) in s.stage_ms.iter().enumerate() {
+                    count(name.len(), MAX_NAME_LEN, "stage name")?;
+                    finite(*t, || format!("stage_ms[{i}]"))?;
+                }
+                Ok(())
+            }
+            ServerMessage::State(f) => {
+                let f32s = |v: &[f32; 3], path: &dyn Fn() -> String| {
+                    v.iter().enumerate().try_for_each(|(k, x)| finite(f64::from(*x), || format!("{}[{k}]", path())))
+                };
+                if let Some(c) = &f.centre {
+                    f32s(c, &|| "centre".into())?;
+                }
+                for (i, b) in f.entered.iter().enumerate() {
+                    count(b.class.len(), MAX_NAME_LEN, "class")?;
+                    f32s(&b.half_extents_m, &|| format!("entered[{i}].half_extents_m"))?;
+                    f32s(&b.offset_m, &|| format!("entered[{i}].offset_m"))?;
+                }
+                for (i, m) in f.moved.iter().enumerate() {
+                    f32s(&m.1, &|| format!("moved[{i}].position"))?;
+                    f32s(&m.2, &|| format!("moved[{i}].velocity"))?;
+                }
                 Ok(())
             }
             ServerMessage::Ack(_)

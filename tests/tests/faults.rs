@@ -66,6 +66,7 @@ fn run(seed: u64) -> Result<String, String> {
         settle: Duration::from_secs(4),
         progress: false,
         faults,
+        state: false,
     };
     let report = load::run(&cfg).map_err(|e| format!("{plan}\nload: {e}"))?;
     let rss = rss_mib(pid);

@@ -351,6 +351,7 @@ fn ahead_clients_arrive_on_time_behind_clients_are_rolled_back_and_both_see_the_
             seed: 3,
             settle: Duration::from_millis(1500),
             faults: Default::default(),
+            state: false,
             progress: false,
         };
         let r = load::run(&cfg).expect("load runs");

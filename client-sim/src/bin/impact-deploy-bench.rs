@@ -159,6 +159,7 @@ fn load_cfg(connect: &str, clients: u32, first: u32, sessions: u32, seconds: u64
         settle: Duration::from_secs(2),
         progress: false,
         faults: Default::default(),
+        state: false,
     }
 }
 

@@ -77,6 +77,10 @@ struct Args {
     /// behind zenohd); `peer` may also connect to the servers directly.
     #[arg(long, value_enum, default_value_t = net::Mode::Peer)]
     zenoh_mode: net::Mode,
+    /// Subscribe every client to its state stream (`client/{id}/state`) and report its bytes
+    /// per client per second.
+    #[arg(long)]
+    state: bool,
     /// Seed for behaviour and the network model.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -156,6 +160,7 @@ fn main() -> Result<()> {
         settle: ms(4.0 * (a.latency_ms + a.jitter_ms) + 1500.0),
         progress: true,
         faults: Default::default(),
+        state: a.state,
     };
     eprintln!(
         "impact-sim: {} clients ({:?}, timing {:?}) over {} sessions -> {}, {} s, latency {} +- {} ms, loss {}",

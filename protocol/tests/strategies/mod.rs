@@ -201,6 +201,51 @@ pub fn server_message() -> impl Strategy<Value = ServerMessage> {
                     inputs_rejected: rejected,
                     events_per_s: eps,
                     queue_depth_max: 9,
+                    tick_ms: vec![p50 as f32, p99 as f32],
+                    stage_ms: vec![("broadphase".into(), p50 / 3.0)],
+                    clients: bodies / 3,
+                })
+            }),
+        (
+            tick(),
+            any::<u32>(),
+            any::<bool>(),
+            vec((entity(), "[a-z]{1,10}", option::of(client()), 0..7u8, small3()), 0..4),
+            vec((entity(), small3(), small3(), any::<bool>()), 0..6),
+            vec(entity(), 0..3),
+            option::of(small3()),
+        )
+            .prop_map(|(tick, frame, full, entered, moved, left, centre)| {
+                let f3 = |v: [f64; 3]| v.map(|x| x as f32);
+                let shapes = [
+                    BodyShape::Sphere,
+                    BodyShape::Capsule,
+                    BodyShape::Cuboid,
+                    BodyShape::Ellipsoid,
+                    BodyShape::Convex,
+                    BodyShape::Trimesh,
+                    BodyShape::Terrain,
+                ];
+                ServerMessage::State(StateFrame {
+                    tick,
+                    frame,
+                    full,
+                    entered: entered
+                        .into_iter()
+                        .map(|(entity, class, owner, shape, half)| BodyInfo {
+                            entity,
+                            class,
+                            owner,
+                            shape: shapes[usize::from(shape)],
+                            half_extents_m: f3(half),
+                            offset_m: [0.0; 3],
+                            fixed: owner.is_none(),
+                        })
+                        .collect(),
+                    moved: moved.into_iter().map(|(e, p, v, a)| BodyMotion(e, f3(p), f3(v), a)).collect(),
+                    left,
+                    deferred: frame % 5,
+                    centre: centre.map(f3),
                 })
             }),
         "[a-z ]{0,40}".prop_map(|detail| ServerMessage::QueryError(QueryError { detail })),

@@ -104,6 +104,23 @@ struct Args {
     /// With --print-acl: where the router's dictionary file (one `name:password` per line) is.
     #[arg(long, default_value = "users.dict")]
     dictionary_path: String,
+    /// State stream frames per second: every body on `state`, and per client the bodies near
+    /// its avatar on `client/{id}/state` (PROTOCOL.md, "State streams"). 0 turns them off.
+    #[arg(long, default_value_t = 20)]
+    state_hz: u32,
+    /// Radius of a client's area of interest around its avatar, metres.
+    #[arg(long, default_value_t = 20.0)]
+    aoi_m: f64,
+    /// Bytes per second one client's state stream may use on average (the nearest bodies go
+    /// first when a frame would exceed it).
+    #[arg(long, default_value_t = 32 * 1024)]
+    state_budget: u32,
+    /// A full state frame every this many frames; deltas between.
+    #[arg(long, default_value_t = 40, value_parser = clap::value_parser!(u32).range(1..))]
+    state_full_every: u32,
+    /// Serve Prometheus metrics at http://ADDR/metrics, e.g. 127.0.0.1:9898.
+    #[arg(long)]
+    metrics: Option<String>,
 }
 
 fn main() -> Result<()> {
@@ -245,6 +262,24 @@ fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>) -> Re
             bail!("--record {r}: with several worlds the path must contain {{world}}");
         }
     }
+    if !(args.aoi_m.is_finite() && args.aoi_m > 0.0) {
+        bail!("--aoi-m {} must be a positive number of metres", args.aoi_m);
+    }
+    let state = runtime::StateOptions {
+        hz: args.state_hz,
+        aoi_m: args.aoi_m,
+        bytes_per_s: args.state_budget,
+        full_every: args.state_full_every,
+    };
+    let metrics = args.metrics.as_ref().map(|_| runtime::Metrics::new());
+    let _metrics_server = match (&metrics, &args.metrics) {
+        (Some(m), Some(addr)) => {
+            let server = m.serve(addr).with_context(|| format!("--metrics {addr}: cannot listen there"))?;
+            println!("metrics: http://{}/metrics", server.addr());
+            Some(server)
+        }
+        _ => None,
+    };
     let mut worlds = Vec::new();
     for (scene, path) in scenes {
         let plan = Plan::for_world(&scene.world);
@@ -270,6 +305,8 @@ fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>) -> Re
             users: users.clone(),
             record: args.record.as_ref().map(|r| PathBuf::from(r.replace("{world}", scene.name.as_str()))),
             standby: args.standby,
+            state: state.clone(),
+            metrics: metrics.clone(),
             ..ServerOptions::default()
         };
         worlds.push((scene, opts));

@@ -20,10 +20,15 @@
 pub mod auth;
 mod egress;
 mod error;
+pub mod http;
+pub mod metrics;
 mod server;
 mod session;
+pub mod state;
 mod timing;
 
 pub use error::RuntimeError;
+pub use metrics::Metrics;
 pub use server::{start, start_worlds, ServerHandle, ServerOptions, Summary};
 pub use session::zenoh_config;
+pub use state::StateOptions;

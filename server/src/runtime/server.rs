@@ -2,6 +2,8 @@
 
 use super::egress::{self, Out};
 use super::error::RuntimeError;
+use super::metrics::{Metrics, Totals, WorldMetrics};
+use super::state::{Capture, StateCounters, StateOptions, Viewer};
 use super::timing::LeadEstimator;
 use crate::rollback::{RollbackConfig, Session};
 use crate::scene::{avatar_position, AvatarRule, Scene};
@@ -9,8 +11,8 @@ use crate::sim::{Plan, SystemAction};
 use impact_protocol::limits::MAX_CLIENT_MESSAGE_BYTES;
 use impact_protocol::{
     decode_unchecked, encode, keys, Admitted, ClientId, ClientInput, ClientMessage, CollisionEvent, Encoding, EntityId,
-    EventBatch, EventHistory, InputAck, InputReject, LoggedInput, QueryError, RejectReason, ServerMessage, ServerStats,
-    Tick, Validate, Welcome, WorldId,
+    EventBatch, EventHistory, InputAck, InputReject, LoggedInput, QueryError, RejectReason, ServerMessage, Tick,
+    Validate, Welcome, WorldId,
 };
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -22,6 +24,7 @@ use std::time::{Duration, Instant};
 use zenoh::Wait;
 
 mod standby;
+mod stats;
 
 /// How to run the server.
 #[derive(Clone, Debug)]
@@ -58,6 +61,10 @@ pub struct ServerOptions {
     /// Follow the world's primary (its checkpoint and log) and take over when its liveliness
     /// token goes (`--standby`).
     pub standby: bool,
+    /// The state streams (`--state-hz`, `--aoi-m`, `--state-budget`).
+    pub state: StateOptions,
+    /// Prometheus metrics to keep (`--metrics`); the registry may be shared by several worlds.
+    pub metrics: Option<Metrics>,
 }
 
 impl Default for ServerOptions {
@@ -78,6 +85,8 @@ impl Default for ServerOptions {
             users: None,
             record: None,
             standby: false,
+            state: StateOptions::default(),
+            metrics: None,
         }
     }
 }
@@ -93,6 +102,8 @@ pub struct Summary {
     pub tick_ms_max: f64,
     /// Median tick, ms (over the whole run).
     pub tick_ms_p50: f64,
+    /// Mean tick, ms.
+    pub tick_ms_mean: f64,
     /// 99th percentile tick, ms.
     pub tick_ms_p99: f64,
     /// Inputs accepted.
@@ -104,6 +115,8 @@ pub struct Summary {
     pub inputs_lost: u64,
     /// Events published (provisional).
     pub events: u64,
+    /// Events confirmed.
+    pub confirmed_events: u64,
     /// Correction batches published.
     pub corrections: u64,
     /// Messages the egress queue had to drop.
@@ -137,6 +150,20 @@ pub struct Summary {
     pub caught_up_ticks: u32,
     /// Acked inputs re-applied at the takeover.
     pub reapplied_inputs: u64,
+    /// State streams: frames on client streams.
+    pub state_client_frames: u64,
+    /// Bytes on client streams.
+    pub state_client_bytes: u64,
+    /// Bytes on the world stream.
+    pub state_world_bytes: u64,
+    /// Client-seconds served by the client streams (a client's frame counts 1/hz s).
+    pub state_client_s: f64,
+    /// Seconds the state thread spent building, encoding and publishing.
+    pub state_busy_s: f64,
+    /// Seconds the tick thread spent copying the state for it.
+    pub state_capture_s: f64,
+    /// Captures skipped because the state thread was busy.
+    pub state_skipped: u64,
 }
 
 impl std::fmt::Display for Summary {
@@ -188,6 +215,20 @@ impl std::fmt::Display for Summary {
                 f,
                 "took over at tick {} ({} ticks re-simulated from the last confirmed one, {} acked inputs re-applied)",
                 t.0, self.caught_up_ticks, self.reapplied_inputs
+            )?;
+        }
+        if self.state_client_frames > 0 || self.state_world_bytes > 0 {
+            let tick_s = self.tick_ms_mean * self.ticks as f64 / 1e3;
+            writeln!(
+                f,
+                "state streams: {:.0} bytes per client per second ({} client frames), world stream {:.0} bytes/s; \
+                 state thread {:.1} % of a core, copying {:.2} % of tick time, {} captures skipped",
+                self.state_client_bytes as f64 / self.state_client_s.max(1e-9),
+                self.state_client_frames,
+                self.state_world_bytes as f64 / self.run_s.max(1e-9),
+                100.0 * self.state_busy_s / self.run_s.max(1e-9),
+                100.0 * self.state_capture_s / tick_s.max(1e-9),
+                self.state_skipped
             )?;
         }
         write!(f, "egress messages dropped {}", self.egress_dropped)
@@ -388,6 +429,20 @@ fn start_world(zs: &Arc<Closer>, scene: Scene, opts: ServerOptions) -> Result<Se
         .spawn(move || egress::run(egress_session, egress_rx, ef))
         .map_err(|e| RuntimeError::Thread(e.to_string()))?;
 
+    let state_counters = Arc::new(StateCounters::default());
+    let (state_tx, state_thread) = if opts.state.hz > 0 {
+        let (tx, rx) = sync_channel::<Capture>(2);
+        let (session, world, so, enc, c) =
+            (zs.0.clone(), world_id.clone(), opts.state.clone(), opts.encoding, state_counters.clone());
+        let t = std::thread::Builder::new()
+            .name(format!("impact-state-{world_id}"))
+            .spawn(move || super::state::run(session, world, so, enc, rx, c))
+            .map_err(|e| RuntimeError::Thread(e.to_string()))?;
+        (Some(tx), Some(t))
+    } else {
+        (None, None)
+    };
+
     let stop = Arc::new(AtomicBool::new(false));
     let stop2 = stop.clone();
     let world_name = world_id.clone();
@@ -398,7 +453,15 @@ fn start_world(zs: &Arc<Closer>, scene: Scene, opts: ServerOptions) -> Result<Se
             let mut t = TickLoop::new(scene, opts, world_name, egress_tx, shared);
             t.record = record;
             t.primary = primary;
-            let summary = t.run(&stop2, &zs.0, &wiring, follower, ingress_rx, control_rx, query_rx);
+            t.state_tx = state_tx;
+            t.state_counters = state_counters;
+            let mut summary = t.run(&stop2, &zs.0, &wiring, follower, ingress_rx, control_rx, query_rx);
+            // The state thread ends when its queue closes.
+            t.state_tx = None;
+            if let Some(s) = state_thread {
+                let _ = s.join();
+            }
+            t.state_summary(&mut summary);
             // Undeclare the callbacks (they hold senders of the egress queue), then drop the
             // tick loop's sender: the queue closes, the egress thread drains it and ends.
             drop(presence_sub);
@@ -513,8 +576,20 @@ struct TickLoop {
     shared: Arc<Shared>,
     clients: BTreeMap<ClientId, ClientState>,
     summary: Summary,
+    /// This second's tick durations, ms (the stats message carries them).
     tick_times: Vec<f64>,
-    all_tick_times: hdr::Histogram,
+    /// Every tick's duration, microseconds, for the run's percentiles.
+    all_tick_times: hdrhistogram::Histogram<u64>,
+    /// Core stage times and steps at the last stats message, for the period's means.
+    last_stages: (u64, Vec<Duration>),
+    /// Where state captures go (`None`: no state streams).
+    state_tx: Option<SyncSender<Capture>>,
+    state_counters: Arc<StateCounters>,
+    /// The state frame the last capture was for.
+    state_frame: Option<u64>,
+    /// Client-seconds the client state streams served.
+    state_client_s: f64,
+    metrics: Option<WorldMetrics>,
     period_events: u64,
     period_rollbacks: u32,
     period_depth: u32,
@@ -534,44 +609,6 @@ struct TickLoop {
     confirmed_upto: Option<Tick>,
 }
 
-/// A fixed-bucket histogram of tick durations (0.01 ms buckets up to 100 ms), so a long run's
-/// percentiles take fixed memory.
-mod hdr {
-    #[derive(Debug)]
-    pub struct Histogram {
-        buckets: Vec<u64>,
-        count: u64,
-    }
-    impl Histogram {
-        pub fn new() -> Histogram {
-            Histogram { buckets: vec![0; 10_001], count: 0 }
-        }
-        pub fn record(&mut self, ms: f64) {
-            let b = ((ms * 100.0).round() as usize).min(self.buckets.len() - 1);
-            self.buckets[b] += 1;
-            self.count += 1;
-        }
-        pub fn quantile(&self, q: f64) -> f64 {
-            let target = (self.count as f64 * q).ceil().max(1.0) as u64;
-            let mut seen = 0;
-            for (b, n) in self.buckets.iter().enumerate() {
-                seen += n;
-                if seen >= target {
-                    return b as f64 / 100.0;
-                }
-            }
-            0.0
-        }
-    }
-}
-
-fn percentile(sorted: &[f64], q: f64) -> f64 {
-    if sorted.is_empty() {
-        return 0.0;
-    }
-    sorted[((sorted.len() as f64 - 1.0) * q).round() as usize]
-}
-
 impl TickLoop {
     fn new(
         scene: Scene,
@@ -585,6 +622,7 @@ impl TickLoop {
         rb.window_ticks = rb.window_ticks.max(1);
         let plan = Plan::for_world(&w);
         let session = Session::new(w, plan, rb);
+        let metrics = opts.metrics.as_ref().map(|m| m.world(world.as_str()));
         TickLoop {
             session,
             opts,
@@ -595,7 +633,14 @@ impl TickLoop {
             clients: BTreeMap::new(),
             summary: Summary::default(),
             tick_times: Vec::with_capacity(128),
-            all_tick_times: hdr::Histogram::new(),
+            // 1 us to 1 h at three significant figures: the bounds cannot be out of range.
+            all_tick_times: hdrhistogram::Histogram::new_with_bounds(1, 3_600_000_000, 3).expect("valid bounds"),
+            last_stages: (0, Vec::new()),
+            state_tx: None,
+            state_counters: Arc::new(StateCounters::default()),
+            state_frame: None,
+            state_client_s: 0.0,
+            metrics,
             period_events: 0,
             period_rollbacks: 0,
             period_depth: 0,
@@ -707,7 +752,10 @@ impl TickLoop {
                 self.summary.overruns += 1;
             }
             self.tick_times.push(ms);
-            self.all_tick_times.record(ms);
+            let _ = self.all_tick_times.record((ms * 1e3).round().max(1.0) as u64);
+            if let Some(m) = &self.metrics {
+                m.tick(ms / 1e3);
+            }
             self.summary.tick_ms_max = self.summary.tick_ms_max.max(ms);
             if last_stats.elapsed() >= Duration::from_secs(1) {
                 last_stats = Instant::now();
@@ -737,8 +785,10 @@ impl TickLoop {
                 eprintln!("impact-server: world {}: {e}", self.world);
             }
         }
-        self.summary.tick_ms_p50 = self.all_tick_times.quantile(0.5);
-        self.summary.tick_ms_p99 = self.all_tick_times.quantile(0.99);
+        let h = &self.all_tick_times;
+        self.summary.tick_ms_p50 = h.value_at_quantile(0.5) as f64 / 1e3;
+        self.summary.tick_ms_p99 = h.value_at_quantile(0.99) as f64 / 1e3;
+        self.summary.tick_ms_mean = h.mean() / 1e3;
         self.summary.egress_dropped = self.shared.egress_dropped.load(Ordering::Relaxed);
         for (k, r) in RejectReason::ALL.iter().enumerate() {
             let n = self.shared.rejected_in_callbacks[k].load(Ordering::Relaxed);
@@ -783,6 +833,7 @@ impl TickLoop {
         self.ingest(ingress);
         self.publish_admitted();
         self.step();
+        self.capture_state();
         // Queries, answered from the history.
         while let Ok(q) = queries.try_recv() {
             self.answer(q);
@@ -945,6 +996,9 @@ impl TickLoop {
     fn publish(&mut self, mut adv: crate::rollback::Advance) {
         self.summary.ticks += 1;
         if adv.rollback_depth > 0 {
+            if let Some(m) = &self.metrics {
+                m.rollback(adv.rollback_depth);
+            }
             self.period_rollbacks += 1;
             self.period_depth = self.period_depth.max(adv.rollback_depth);
             let d = adv.rollback_depth as usize;
@@ -992,6 +1046,7 @@ impl TickLoop {
             self.put_log(keys::LOG.key(&self.world, None), &ServerMessage::Log(entry));
         }
         if let Some(c) = adv.confirmed.as_ref().filter(|c| fresh(c.tick)) {
+            self.summary.confirmed_events += c.events.len() as u64;
             if !c.events.is_empty() {
                 let cc = c.clone();
                 self.per_client(&c.events, c.tick, move |events| {
@@ -1176,46 +1231,6 @@ impl TickLoop {
                 self.shared.egress_dropped.fetch_add(1, Ordering::Relaxed);
             }
         }
-    }
-
-    fn publish_stats(&mut self) {
-        let mut times = std::mem::take(&mut self.tick_times);
-        times.sort_by(f64::total_cmp);
-        let w = self.session.world();
-        let mut rejected = self.summary.inputs_rejected.clone();
-        for (k, r) in RejectReason::ALL.iter().enumerate() {
-            let n = self.shared.rejected_in_callbacks[k].load(Ordering::Relaxed);
-            if n > 0 {
-                *rejected.entry(r.name().to_string()).or_insert(0) += n;
-            }
-        }
-        let stats = ServerStats {
-            tick: w.tick,
-            tick_ms_p50: percentile(&times, 0.5),
-            tick_ms_p99: percentile(&times, 0.99),
-            tick_ms_max: times.last().copied().unwrap_or(0.0),
-            overruns: self.summary.overruns,
-            bodies: w.bodies.len() as u32,
-            pairs_tested: self.session.stepper().stats.pairs_tested,
-            rollbacks: self.period_rollbacks,
-            rollback_depth_max: self.period_depth,
-            inputs_accepted: self.summary.inputs_accepted,
-            inputs_rejected: rejected,
-            events_per_s: self.period_events as f64,
-            queue_depth_max: self.period_queue_max,
-        };
-        if self.opts.verbose {
-            let (awake, asleep) = w.awake_asleep();
-            eprintln!(
-                "  tick {} | tick ms p50 {:.3} p99 {:.3} | bodies {} ({} awake, {} asleep) | clients {} | inputs {} | rollbacks {} (depth {}) | events/s {}",
-                stats.tick, stats.tick_ms_p50, stats.tick_ms_p99, stats.bodies, awake, asleep, self.clients.len(), stats.inputs_accepted, stats.rollbacks, stats.rollback_depth_max, stats.events_per_s
-            );
-        }
-        self.put(keys::STATS.key(&self.world, None), &ServerMessage::Stats(stats), self.opts.encoding);
-        self.period_events = 0;
-        self.period_rollbacks = 0;
-        self.period_depth = 0;
-        self.period_queue_max = 0;
     }
 }
 

@@ -287,6 +287,11 @@ pub struct NewBody {
 }
 
 impl Bodies {
+    /// What the bodies keep for life, shared (a clone of the `Arc`, not of the table).
+    pub fn table(&self) -> Arc<BodyTable> {
+        self.table.clone()
+    }
+
     /// Number of bodies.
     pub fn len(&self) -> usize {
         self.id.len()

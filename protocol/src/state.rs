@@ -1,0 +1,86 @@
+//! The state streams: where the bodies are, for drawing and interpolation.
+//!
+//! A stream is a sequence of [`StateFrame`]s numbered by `frame`. A full frame lists every body
+//! the stream shows; a delta lists what changed since the frame before it: bodies that entered
+//! the view (with what never changes about them), bodies whose motion changed, bodies that left.
+//! A receiver that sees a gap in `frame` (a frame lost to congestion) ignores deltas until the
+//! next full frame. Positions and velocities are `f32`: enough to draw and interpolate; the
+//! authoritative state (f64, with its hash) is the state query.
+
+use crate::ids::{ClientId, EntityId, Tick};
+use serde::{Deserialize, Serialize};
+
+/// The shape family of a body, for drawing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BodyShape {
+    /// A sphere: its radius is `half_extents_m[0]`.
+    Sphere,
+    /// A capsule along its local y axis.
+    Capsule,
+    /// A box.
+    Cuboid,
+    /// An ellipsoid.
+    Ellipsoid,
+    /// A convex hull.
+    Convex,
+    /// A static triangle mesh.
+    Trimesh,
+    /// Height-field terrain.
+    Terrain,
+}
+
+/// What never changes about a body, sent when it enters a stream's view.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BodyInfo {
+    /// The body.
+    pub entity: EntityId,
+    /// Its class name from the scene.
+    pub class: String,
+    /// Owning client, if any.
+    pub owner: Option<ClientId>,
+    /// Shape family.
+    pub shape: BodyShape,
+    /// Half extents of its world-frame bounding box, metres (orientations are fixed).
+    pub half_extents_m: [f32; 3],
+    /// Centre of that box relative to the body's position, metres (zero but for meshes).
+    pub offset_m: [f32; 3],
+    /// Static: never moves.
+    pub fixed: bool,
+}
+
+/// Where a body is and how it moves, as an array `[entity, [x, y, z], [vx, vy, vz], asleep]`
+/// to keep frames small (about 40 bytes in MessagePack).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BodyMotion(
+    /// The body.
+    pub EntityId,
+    /// Centre, world frame, metres.
+    pub [f32; 3],
+    /// Velocity, m/s.
+    pub [f32; 3],
+    /// Asleep (a sleeping body's velocity is zero).
+    pub bool,
+);
+
+/// One frame of a state stream (`state`, or `client/{id}/state`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StateFrame {
+    /// The tick the positions are at (the server's present, provisional tick).
+    pub tick: Tick,
+    /// Frame number on this stream: one more than the frame before.
+    pub frame: u32,
+    /// A full frame: the receiver drops what it holds and keeps exactly these bodies.
+    pub full: bool,
+    /// Bodies that entered the view, with what never changes about them (each also in `moved`).
+    pub entered: Vec<BodyInfo>,
+    /// Bodies whose motion changed since the last frame that carried them.
+    pub moved: Vec<BodyMotion>,
+    /// Bodies no longer shown: out of the area of interest, or removed from the world.
+    pub left: Vec<EntityId>,
+    /// Bodies in the area of interest held back by the byte budget this frame (the farthest
+    /// first; they come in later frames). Always 0 on the world stream.
+    pub deferred: u32,
+    /// The point a client's stream is centred on (its avatar), `None` on the world stream.
+    pub centre: Option<[f32; 3]>,
+}

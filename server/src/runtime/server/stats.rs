@@ -1,0 +1,146 @@
+//! What the tick loop reports: the stats message once a second, the Prometheus series, and the
+//! copy of the state the state streams are built from.
+
+use super::{Capture, ServerMessage, Summary, TickLoop, Totals, Viewer};
+use impact_protocol::{keys, RejectReason, ServerStats};
+use std::collections::BTreeMap;
+use std::sync::atomic::Ordering;
+use std::sync::mpsc::TrySendError;
+use std::time::{Duration, Instant};
+
+fn percentile(sorted: &[f64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return 0.0;
+    }
+    sorted[((sorted.len() as f64 - 1.0) * q).round() as usize]
+}
+
+impl TickLoop {
+    /// Inputs rejected since start, by reason: the tick thread's count and the callbacks'.
+    fn rejected(&self) -> BTreeMap<String, u64> {
+        let mut rejected = self.summary.inputs_rejected.clone();
+        for (k, r) in RejectReason::ALL.iter().enumerate() {
+            let n = self.shared.rejected_in_callbacks[k].load(Ordering::Relaxed);
+            if n > 0 {
+                *rejected.entry(r.name().to_string()).or_insert(0) += n;
+            }
+        }
+        rejected
+    }
+
+    /// Hands a copy of the world to the state thread when a state frame is due (`--state-hz`
+    /// frames per second, on the first tick of each frame's span).
+    pub(super) fn capture_state(&mut self) {
+        let Some(tx) = &self.state_tx else { return };
+        let hz = u64::from(self.opts.state.hz);
+        let tick_hz = u64::from(self.session.world().config.tick_hz.max(1));
+        let frame = u64::from(self.session.now().0) * hz / tick_hz;
+        if self.state_frame == Some(frame) {
+            return;
+        }
+        self.state_frame = Some(frame);
+        let t0 = Instant::now();
+        let viewers: Vec<Viewer> = self
+            .clients
+            .iter()
+            .filter(|(_, s)| s.present)
+            .filter_map(|(c, s)| s.avatar.map(|avatar| Viewer { client: *c, avatar, encoding: s.encoding }))
+            .collect();
+        let n = viewers.len();
+        let cap = Capture::of(self.session.world(), viewers);
+        match tx.try_send(cap) {
+            Ok(()) => self.state_client_s += n as f64 / hz as f64,
+            Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) => {
+                self.state_counters.skipped.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        self.state_counters.capture_ns.fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
+    }
+
+    /// The state streams' figures, into the run's summary.
+    pub(super) fn state_summary(&self, summary: &mut Summary) {
+        let c = &self.state_counters;
+        summary.state_client_frames = c.client_frames.load(Ordering::Relaxed);
+        summary.state_client_bytes = c.client_bytes.load(Ordering::Relaxed);
+        summary.state_world_bytes = c.world_bytes.load(Ordering::Relaxed);
+        summary.state_client_s = self.state_client_s;
+        summary.state_busy_s = c.busy_ns.load(Ordering::Relaxed) as f64 / 1e9;
+        summary.state_capture_s = c.capture_ns.load(Ordering::Relaxed) as f64 / 1e9;
+        summary.state_skipped = c.skipped.load(Ordering::Relaxed);
+    }
+
+    /// Publishes the stats message and brings the metrics up to date (once a second).
+    pub(super) fn publish_stats(&mut self) {
+        let mut times = std::mem::take(&mut self.tick_times);
+        let tick_ms: Vec<f32> = times.iter().map(|&t| t as f32).collect();
+        times.sort_by(f64::total_cmp);
+        let w = self.session.world();
+        let rejected = self.rejected();
+        // Mean time per core step of each stage since the last message.
+        let core = &self.session.stepper().stats;
+        let stages = core.stages();
+        let (last_steps, last) = &self.last_stages;
+        let steps = core.ticks.saturating_sub(*last_steps).max(1) as f64;
+        let stage_ms = stages
+            .iter()
+            .enumerate()
+            .map(|(k, (n, d))| {
+                let before = last.get(k).copied().unwrap_or_default();
+                (n.to_string(), d.saturating_sub(before).as_secs_f64() * 1e3 / steps)
+            })
+            .collect();
+        let present = self.clients.values().filter(|c| c.present).count();
+        let stats = ServerStats {
+            tick: w.tick,
+            tick_ms_p50: percentile(&times, 0.5),
+            tick_ms_p99: percentile(&times, 0.99),
+            tick_ms_max: times.last().copied().unwrap_or(0.0),
+            overruns: self.summary.overruns,
+            bodies: w.bodies.len() as u32,
+            pairs_tested: core.pairs_tested,
+            rollbacks: self.period_rollbacks,
+            rollback_depth_max: self.period_depth,
+            inputs_accepted: self.summary.inputs_accepted,
+            inputs_rejected: rejected.clone(),
+            events_per_s: self.period_events as f64,
+            queue_depth_max: self.period_queue_max,
+            tick_ms,
+            stage_ms,
+            clients: present as u32,
+        };
+        let (awake, asleep) = w.awake_asleep();
+        if self.opts.verbose {
+            eprintln!(
+                "  tick {} | tick ms p50 {:.3} p99 {:.3} | bodies {} ({} awake, {} asleep) | clients {} | inputs {} | rollbacks {} (depth {}) | events/s {}",
+                stats.tick, stats.tick_ms_p50, stats.tick_ms_p99, stats.bodies, awake, asleep, self.clients.len(), stats.inputs_accepted, stats.rollbacks, stats.rollback_depth_max, stats.events_per_s
+            );
+        }
+        let stage_s: Vec<(&'static str, f64)> = stages.iter().map(|(n, d)| (*n, d.as_secs_f64())).collect();
+        self.last_stages = (core.ticks, stages.iter().map(|(_, d)| *d).collect::<Vec<Duration>>());
+        if let Some(m) = self.metrics.as_mut() {
+            let c = &self.state_counters;
+            let load = |a: &std::sync::atomic::AtomicU64| a.load(Ordering::Relaxed);
+            m.gauges(present, awake, asleep, self.period_queue_max);
+            m.sync(&Totals {
+                overruns: self.summary.overruns,
+                stage_s,
+                steps: core.ticks,
+                accepted: self.summary.inputs_accepted,
+                rejected,
+                events: self.summary.events,
+                confirmed: self.summary.confirmed_events,
+                corrections: self.summary.corrections,
+                egress_dropped: self.shared.egress_dropped.load(Ordering::Relaxed),
+                state_bytes: [load(&c.world_bytes), load(&c.client_bytes)],
+                state_frames: [load(&c.world_frames), load(&c.client_frames)],
+                state_deferred: load(&c.deferred),
+                state_skipped: load(&c.skipped),
+            });
+        }
+        self.put(keys::STATS.key(&self.world, None), &ServerMessage::Stats(stats), self.opts.encoding);
+        self.period_events = 0;
+        self.period_rollbacks = 0;
+        self.period_depth = 0;
+        self.period_queue_max = 0;
+    }
+}

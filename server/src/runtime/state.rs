@@ -1,0 +1,713 @@
+//! The state streams: every body on `state`, and per client on `client/{id}/state` the bodies
+//! near its avatar within a byte budget, as full frames at an interval and deltas between
+//! (PROTOCOL.md, "State streams").
+//!
+//! The tick thread only copies what moves (positions, velocities, sleep flags: three arrays)
+//! and hands the copy to this module's thread through a queue of two; a frame that finds the
+//! queue full is skipped and counted. Everything else runs here: the area-of-interest search,
+//! each receiver's delta against what it holds, the budget, encoding and publishing.
+//!
+//! Each receiver's held set is the bodies it was last sent, with the motion it was sent. A body
+//! is sent again when it moved more than a millimetre (or its velocity changed by a mm/s, or it
+//! fell asleep or woke) from that. When a frame's changes exceed the budget, the nearest go
+//! first; a body held back gains priority every frame it waits (its distance is divided by one
+//! plus the frames it waited), so none starves. The budget is a token bucket: a second's worth of
+//! bytes at most, refilled each frame, so a full frame may spend what the deltas left.
+
+use crate::sim::world::SimConfig;
+use crate::sim::world::{BodyTable, StaticWorld};
+use glam::DVec3;
+use impact_protocol::{
+    encode, keys, BodyInfo, BodyMotion, BodyShape, ClientId, Encoding, EntityId, ServerMessage, StateFrame, Tick,
+    WorldId,
+};
+use std::collections::{BTreeMap, HashMap};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::Receiver;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// How the state streams run.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StateOptions {
+    /// Frames per second on every stream (0: no state streams).
+    pub hz: u32,
+    /// Radius of a client's area of interest around its avatar, metres.
+    pub aoi_m: f64,
+    /// Bytes per second one client's stream may use on average (a second's worth may burst).
+    pub bytes_per_s: u32,
+    /// A full frame every this many frames (the rest are deltas).
+    pub full_every: u32,
+}
+
+impl Default for StateOptions {
+    fn default() -> Self {
+        StateOptions { hz: 20, aoi_m: 20.0, bytes_per_s: 32 * 1024, full_every: 40 }
+    }
+}
+
+/// A client whose stream is due: its avatar is the centre of its area of interest.
+#[derive(Clone, Debug)]
+pub struct Viewer {
+    /// The client.
+    pub client: ClientId,
+    /// Its avatar.
+    pub avatar: EntityId,
+    /// The encoding it asked for.
+    pub encoding: Encoding,
+}
+
+/// What the tick thread hands over: the moving state of one tick, and the parts that do not
+/// move by reference.
+#[derive(Debug)]
+pub struct Capture {
+    /// The tick the positions are at.
+    pub tick: Tick,
+    /// Ids, classes, shapes and bounds of the dynamic bodies (shared, not copied).
+    pub table: Arc<BodyTable>,
+    /// Positions.
+    pub pos: Vec<DVec3>,
+    /// Velocities.
+    pub vel: Vec<DVec3>,
+    /// Sleep flags.
+    pub asleep: Vec<bool>,
+    /// Static geometry and terrain.
+    pub statics: Arc<StaticWorld>,
+    /// Class names and whether each is static.
+    pub config: Arc<SimConfig>,
+    /// Clients with an avatar.
+    pub viewers: Vec<Viewer>,
+}
+
+impl Capture {
+    /// Copies what moves out of `world`.
+    pub fn of(world: &crate::sim::World, viewers: Vec<Viewer>) -> Capture {
+        let b = &world.bodies;
+        Capture {
+            tick: world.tick,
+            table: b.table(),
+            pos: b.pos.clone(),
+            vel: b.vel.clone(),
+            asleep: b.asleep.clone(),
+            statics: world.statics.clone(),
+            config: world.config.clone(),
+            viewers,
+        }
+    }
+}
+
+/// Counters of the state thread, shared with stats and metrics.
+#[derive(Debug, Default)]
+pub struct StateCounters {
+    /// Frames published on the world stream.
+    pub world_frames: AtomicU64,
+    /// Bytes published on the world stream.
+    pub world_bytes: AtomicU64,
+    /// Frames published on client streams.
+    pub client_frames: AtomicU64,
+    /// Bytes published on client streams.
+    pub client_bytes: AtomicU64,
+    /// Bodies held back by a client's byte budget (summed over frames).
+    pub deferred: AtomicU64,
+    /// Captures skipped because the state thread was still busy with the one before.
+    pub skipped: AtomicU64,
+    /// Nanoseconds the state thread spent building, encoding and publishing.
+    pub busy_ns: AtomicU64,
+    /// Nanoseconds the tick thread spent copying the state for it.
+    pub capture_ns: AtomicU64,
+}
+
+/// One body of a frame's world, in entity order.
+#[derive(Clone, Copy, Debug)]
+struct Entry {
+    motion: BodyMotion,
+    lo: DVec3,
+    hi: DVec3,
+    src: Src,
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Src {
+    Dynamic(usize),
+    Static(usize),
+    Terrain,
+}
+
+/// What a receiver holds: the bodies it was sent, in entity order, and the motion it was sent.
+#[derive(Debug, Default)]
+struct Held {
+    bodies: Vec<HeldBody>,
+    frame: u32,
+    /// Bytes it may still spend (token bucket).
+    tokens: f64,
+    key: String,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct HeldBody {
+    motion: BodyMotion,
+    /// Frames it has changed without being sent.
+    waited: u32,
+}
+
+/// Upper bounds on the MessagePack size of a frame's parts (the budget is kept on these, so
+/// the bytes sent never exceed it).
+const FRAME_BYTES: usize = 160;
+const MOTION_BYTES: usize = 40;
+const INFO_BYTES: usize = 120; // plus the class name
+const LEFT_BYTES: usize = 5;
+
+fn f32x3(v: DVec3) -> [f32; 3] {
+    [v.x as f32, v.y as f32, v.z as f32]
+}
+
+fn changed(a: &BodyMotion, b: &BodyMotion) -> bool {
+    let far = |x: &[f32; 3], y: &[f32; 3], eps: f32| x.iter().zip(y).any(|(p, q)| (p - q).abs() > eps);
+    a.3 != b.3 || far(&a.1, &b.1, 1e-3) || far(&a.2, &b.2, 1e-3)
+}
+
+/// The state streams of one world.
+#[derive(Debug)]
+pub struct Streams {
+    opts: StateOptions,
+    world_key: String,
+    world_id: WorldId,
+    encoding: Encoding,
+    world: Held,
+    clients: BTreeMap<ClientId, Held>,
+    frames: u32,
+    entries: Vec<Entry>,
+    /// Cells of `aoi_m` -> indices into `entries` of the bodies centred there.
+    grid: HashMap<(i64, i64, i64), Vec<u32>>,
+    /// Bodies larger than a cell, tested against every client.
+    large: Vec<u32>,
+    scratch: Vec<(f64, u32)>,
+}
+
+/// A frame ready to publish.
+#[derive(Debug)]
+pub struct Publish {
+    /// Key.
+    pub key: String,
+    /// Encoded frame.
+    pub bytes: Vec<u8>,
+    /// Its encoding.
+    pub encoding: Encoding,
+    /// Bodies its budget held back.
+    pub deferred: u32,
+    /// The frame (kept for tests; `None` in the running server).
+    pub frame: Option<StateFrame>,
+}
+
+impl Streams {
+    /// Streams for `world`, broadcast in `encoding`.
+    pub fn new(world_id: WorldId, opts: StateOptions, encoding: Encoding) -> Streams {
+        Streams {
+            world_key: keys::STATE.key(&world_id, None),
+            world_id,
+            encoding,
+            world: Held::default(),
+            clients: BTreeMap::new(),
+            frames: 0,
+            entries: Vec::new(),
+            grid: HashMap::new(),
+            large: Vec::new(),
+            scratch: Vec::new(),
+            opts,
+        }
+    }
+
+    /// Builds this capture's frames: the world stream's (when `world` says someone listens),
+    /// then each viewer's. `keep` keeps the decoded frames in the result (tests).
+    pub fn frames(&mut self, cap: &Capture, world: bool, keep: bool) -> Vec<Publish> {
+        self.index(cap);
+        let full = self.frames % self.opts.full_every.max(1) == 0;
+        self.frames = self.frames.wrapping_add(1);
+        let mut out = Vec::with_capacity(cap.viewers.len() + 1);
+        // The world stream: every body, no budget; skipped while nobody listens, and full again
+        // for whoever comes.
+        if world {
+            let all: Vec<(f64, u32)> = (0..self.entries.len() as u32).map(|i| (0.0, i)).collect();
+            let world_key = self.world_key.clone();
+            let full = full || self.world.bodies.is_empty();
+            let frame = build(&mut self.world, &self.entries, cap, &all, None, full, None);
+            out.extend(publish(world_key, frame, self.encoding, keep));
+        } else {
+            self.world.bodies.clear();
+        }
+        // Client streams.
+        let per_frame = f64::from(self.opts.bytes_per_s) / f64::from(self.opts.hz.max(1));
+        let cap_tokens = f64::from(self.opts.bytes_per_s).max(per_frame);
+        let mut seen = std::collections::BTreeSet::new();
+        for v in &cap.viewers {
+            let Ok(at) = self.entries.binary_search_by_key(&v.avatar, |e| e.motion.0) else {
+                continue;
+            };
+            let centre = self.entries[at];
+            seen.insert(v.client);
+            let c =
+                DVec3::new(f64::from(centre.motion.1[0]), f64::from(centre.motion.1[1]), f64::from(centre.motion.1[2]));
+            self.near(c);
+            let held = self.clients.entry(v.client).or_insert_with(|| Held {
+                key: keys::CLIENT_STATE.key(&self.world_id, Some(v.client)),
+                tokens: per_frame,
+                ..Held::default()
+            });
+            held.tokens = (held.tokens + per_frame).min(cap_tokens);
+            // A new receiver starts from a full frame.
+            let full = full || held.frame == 0;
+            let frame = build(held, &self.entries, cap, &self.scratch, Some(held.tokens), full, Some(c));
+            held.tokens = (held.tokens - estimate(&frame) as f64).max(0.0);
+            out.extend(publish(held.key.clone(), frame, v.encoding, keep));
+        }
+        // A client gone (or without an avatar) starts again from a full frame when it returns.
+        self.clients.retain(|c, _| seen.contains(c));
+        out
+    }
+
+    /// Lays the capture out in entity order and files it into the grid.
+    fn index(&mut self, cap: &Capture) {
+        self.entries.clear();
+        let st = &cap.statics;
+        let statics = (0..st.id.len()).map(|i| Entry {
+            motion: BodyMotion(st.id[i], f32x3(st.pos[i]), [0.0; 3], false),
+            lo: st.aabb[i].min,
+            hi: st.aabb[i].max,
+            src: Src::Static(i),
+        });
+        let terrain = st.terrain.as_ref().map(|t| {
+            let b = t.field.aabb();
+            Entry {
+                motion: BodyMotion(t.id, f32x3(t.field.origin()), [0.0; 3], false),
+                lo: b.min,
+                hi: b.max,
+                src: Src::Terrain,
+            }
+        });
+        let t = &cap.table;
+        let dynamic = (0..t.id.len()).map(|i| Entry {
+            motion: BodyMotion(t.id[i], f32x3(cap.pos[i]), f32x3(cap.vel[i]), cap.asleep[i]),
+            lo: cap.pos[i] + t.aabb_lo[i],
+            hi: cap.pos[i] + t.aabb_hi[i],
+            src: Src::Dynamic(i),
+        });
+        self.entries.extend(statics.chain(terrain).chain(dynamic));
+        self.entries.sort_by_key(|e| e.motion.0);
+        self.grid.values_mut().for_each(Vec::clear);
+        self.large.clear();
+        let cell = self.opts.aoi_m.max(1e-3);
+        for (i, e) in self.entries.iter().enumerate() {
+            let half = (e.hi - e.lo) * 0.5;
+            if half.max_element() > cell {
+                self.large.push(i as u32);
+                continue;
+            }
+            let m = (e.hi + e.lo) * 0.5 / cell;
+            self.grid.entry((m.x.floor() as i64, m.y.floor() as i64, m.z.floor() as i64)).or_default().push(i as u32);
+        }
+    }
+
+    /// The bodies within `aoi_m` of `c` (distance to their bounds) into `scratch`, as
+    /// `(distance, entry)` in entity order.
+    fn near(&mut self, c: DVec3) {
+        self.scratch.clear();
+        let r = self.opts.aoi_m;
+        let cell = r.max(1e-3);
+        let m = c / cell;
+        let (x, y, z) = (m.x.floor() as i64, m.y.floor() as i64, m.z.floor() as i64);
+        let dist = |e: &Entry| (e.lo - c).max(c - e.hi).max(DVec3::ZERO).length();
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    if let Some(list) = self.grid.get(&(x + dx, y + dy, z + dz)) {
+                        for &i in list {
+                            let d = dist(&self.entries[i as usize]);
+                            if d <= r {
+                                self.scratch.push((d, i));
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        for &i in &self.large {
+            let d = dist(&self.entries[i as usize]);
+            if d <= r {
+                self.scratch.push((d, i));
+            }
+        }
+        self.scratch.sort_by_key(|&(_, i)| i);
+    }
+}
+
+fn info(cap: &Capture, e: &Entry) -> BodyInfo {
+    let half = (e.hi - e.lo) * 0.5;
+    let pos = DVec3::new(f64::from(e.motion.1[0]), f64::from(e.motion.1[1]), f64::from(e.motion.1[2]));
+    let offset = (e.hi + e.lo) * 0.5 - pos;
+    let (class, owner, shape) = match e.src {
+        Src::Dynamic(i) => (Some(cap.table.class[i]), cap.table.owner[i], shape_of(&cap.table.shape[i])),
+        Src::Static(i) => (Some(cap.statics.class[i]), None, shape_of(&cap.statics.shape[i])),
+        Src::Terrain => (cap.statics.terrain.as_ref().map(|t| t.class), None, BodyShape::Terrain),
+    };
+    let props = class.and_then(|c| cap.config.classes.props.get(c.0 as usize));
+    BodyInfo {
+        entity: e.motion.0,
+        class: props.map_or_else(String::new, |p| p.name.clone()),
+        owner,
+        shape,
+        half_extents_m: f32x3(half),
+        offset_m: f32x3(offset),
+        fixed: !matches!(e.src, Src::Dynamic(_)),
+    }
+}
+
+fn shape_of(s: &crate::sim::shape::Shape) -> BodyShape {
+    use crate::sim::shape::ShapeKind as K;
+    match s.kind() {
+        K::Sphere => BodyShape::Sphere,
+        K::Capsule => BodyShape::Capsule,
+        K::Cuboid => BodyShape::Cuboid,
+        K::Ellipsoid => BodyShape::Ellipsoid,
+        K::Convex => BodyShape::Convex,
+        K::TriMesh => BodyShape::Trimesh,
+    }
+}
+
+/// The frame that brings `held` to the bodies of `cands` (`(priority distance, entry)` in entity
+/// order), spending at most `budget` estimated bytes; updates `held` to what it sends.
+fn build(
+    held: &mut Held,
+    entries: &[Entry],
+    cap: &Capture,
+    cands: &[(f64, u32)],
+    budget: Option<f64>,
+    full: bool,
+    centre: Option<DVec3>,
+) -> StateFrame {
+    enum Want {
+        Enter,
+        Move(usize),
+    }
+    let mut frame = StateFrame {
+        tick: cap.tick,
+        frame: held.frame,
+        full,
+        entered: Vec::new(),
+        moved: Vec::new(),
+        left: Vec::new(),
+        deferred: 0,
+        centre: centre.map(f32x3),
+    };
+    held.frame = held.frame.wrapping_add(1);
+    let mut spend = FRAME_BYTES;
+    // Merge what it holds with what it should hold, both in entity order.
+    let mut wants: Vec<(f64, EntityId, u32, Want)> = Vec::new();
+    let mut keep: Vec<HeldBody> = Vec::with_capacity(held.bodies.len());
+    let (mut h, mut c) = (0, 0);
+    let old = std::mem::take(&mut held.bodies);
+    while h < old.len() || c < cands.len() {
+        let he = old.get(h).map(|b| b.motion.0);
+        let ce = cands.get(c).map(|&(_, i)| entries[i as usize].motion.0);
+        match (he, ce) {
+            (Some(a), Some(b)) if a == b => {
+                let (d, i) = cands[c];
+                let now = entries[i as usize].motion;
+                if full {
+                    wants.push((d, b, i, Want::Enter));
+                } else if changed(&old[h].motion, &now) {
+                    let waited = old[h].waited;
+                    wants.push((d / (1.0 + f64::from(waited)), b, i, Want::Move(keep.len())));
+                    keep.push(old[h]);
+                } else {
+                    keep.push(old[h]);
+                }
+                h += 1;
+                c += 1;
+            }
+            (Some(a), b) if b.is_none_or(|b| a < b) => {
+                if !full {
+                    frame.left.push(a);
+                    spend += LEFT_BYTES;
+                }
+                h += 1;
+            }
+            _ => {
+                let (d, i) = cands[c];
+                wants.push((d, entries[i as usize].motion.0, i, Want::Enter));
+                c += 1;
+            }
+        }
+    }
+    if full {
+        keep.clear();
+    }
+    wants.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    let mut entered: Vec<HeldBody> = Vec::new();
+    for (_, _, i, want) in wants {
+        let e = &entries[i as usize];
+        let about = matches!(want, Want::Enter).then(|| info(cap, e));
+        let cost = match &about {
+            Some(i) => INFO_BYTES + i.class.len() + MOTION_BYTES,
+            None => MOTION_BYTES,
+        };
+        if let Some(b) = budget {
+            if (spend + cost) as f64 > b {
+                frame.deferred += 1;
+                if let Want::Move(k) = want {
+                    keep[k].waited = keep[k].waited.saturating_add(1);
+                }
+                continue;
+            }
+        }
+        spend += cost;
+        frame.moved.push(e.motion);
+        match (want, about) {
+            (Want::Move(k), _) => keep[k] = HeldBody { motion: e.motion, waited: 0 },
+            (Want::Enter, about) => {
+                frame.entered.extend(about);
+                entered.push(HeldBody { motion: e.motion, waited: 0 });
+            }
+        }
+    }
+    keep.extend(entered);
+    keep.sort_by_key(|b| b.motion.0);
+    frame.moved.sort_by_key(|m| m.0);
+    frame.entered.sort_by_key(|i| i.entity);
+    held.bodies = keep;
+    frame
+}
+
+/// The budgeted size of a frame: at least its MessagePack size.
+fn estimate(f: &StateFrame) -> usize {
+    let infos: usize = f.entered.iter().map(|i| INFO_BYTES + i.class.len()).sum();
+    FRAME_BYTES + infos + f.moved.len() * MOTION_BYTES + f.left.len() * LEFT_BYTES
+}
+
+fn publish(key: String, frame: StateFrame, encoding: Encoding, keep: bool) -> Option<Publish> {
+    let deferred = frame.deferred;
+    let msg = ServerMessage::State(frame);
+    let bytes = encode(&msg, encoding).ok()?;
+    let frame = match msg {
+        ServerMessage::State(f) if keep => Some(f),
+        _ => None,
+    };
+    Some(Publish { key, bytes, encoding, deferred, frame })
+}
+
+/// The state thread: builds and publishes frames for every capture until the queue closes.
+pub fn run(
+    session: zenoh::Session,
+    world: WorldId,
+    opts: StateOptions,
+    encoding: Encoding,
+    rx: Receiver<Capture>,
+    counters: Arc<StateCounters>,
+) {
+    use zenoh::Wait;
+    let world_key = keys::STATE.key(&world, None);
+    // A declared publisher knows whether anyone subscribes: the world stream (every body, the
+    // viewer's and tools' stream) is built only when someone does.
+    let publisher = session.declare_publisher(world_key.clone()).wait().ok();
+    let mut streams = Streams::new(world, opts, encoding);
+    for cap in rx {
+        let t0 = Instant::now();
+        let listened =
+            publisher.as_ref().is_none_or(|p| p.matching_status().wait().map(|m| m.matching()).unwrap_or(true));
+        let frames = streams.frames(&cap, listened, false);
+        let mut deferred = 0;
+        for p in frames {
+            let n = p.bytes.len() as u64;
+            if p.key == world_key {
+                counters.world_frames.fetch_add(1, Ordering::Relaxed);
+                counters.world_bytes.fetch_add(n, Ordering::Relaxed);
+            } else {
+                counters.client_frames.fetch_add(1, Ordering::Relaxed);
+                counters.client_bytes.fetch_add(n, Ordering::Relaxed);
+            }
+            deferred += u64::from(p.deferred);
+            let _ = session
+                .put(p.key, p.bytes)
+                .encoding(p.encoding.zenoh_tag())
+                .congestion_control(zenoh::qos::CongestionControl::Drop)
+                .wait();
+        }
+        counters.deferred.fetch_add(deferred, Ordering::Relaxed);
+        counters.busy_ns.fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::Scene;
+    use crate::sim::world::NewBody;
+    use glam::DQuat;
+    use impact_protocol::decode;
+
+    /// The arena with a player sphere for each of `players` clients, spread along x.
+    fn arena(players: u32) -> (crate::sim::World, Vec<Viewer>) {
+        let scene = Scene::load(&Scene::bundled_path("arena")).unwrap();
+        let mut w = scene.world;
+        let player = w.config.classes.props.iter().position(|p| p.name == "player").unwrap();
+        let mut viewers = Vec::new();
+        for k in 0..players {
+            let id = w
+                .spawn(NewBody {
+                    class: crate::sim::world::ClassId(player as u16),
+                    shape: crate::sim::shape::Shape::Sphere { radius: 0.5 },
+                    pos: DVec3::new(-25.0 + 10.0 * f64::from(k), 5.0, 0.0),
+                    vel: DVec3::ZERO,
+                    rot: DQuat::IDENTITY,
+                    inv_mass: 1.0,
+                    owner: Some(ClientId(k + 1)),
+                })
+                .unwrap();
+            viewers.push(Viewer { client: ClientId(k + 1), avatar: id, encoding: Encoding::MsgPack });
+        }
+        (w, viewers)
+    }
+
+    /// What a receiver holds after applying a frame (`false` when it had to wait for a full one).
+    fn apply(held: &mut BTreeMap<EntityId, (BodyMotion, Option<BodyInfo>)>, f: &StateFrame) {
+        if f.full {
+            held.clear();
+        }
+        for e in &f.left {
+            held.remove(e);
+        }
+        for i in &f.entered {
+            held.insert(i.entity, (BodyMotion(i.entity, [0.0; 3], [0.0; 3], false), Some(i.clone())));
+        }
+        for m in &f.moved {
+            let slot = held.get_mut(&m.0).expect("a moved body was entered before");
+            slot.0 = *m;
+        }
+    }
+
+    /// Distance from `c` to a body's bounds as a receiver knows them.
+    fn distance(m: &BodyMotion, info: &BodyInfo, c: DVec3) -> f64 {
+        let v = |a: [f32; 3]| DVec3::new(f64::from(a[0]), f64::from(a[1]), f64::from(a[2]));
+        let (mid, half) = (v(m.1) + v(info.offset_m), v(info.half_extents_m));
+        ((mid - half) - c).max(c - (mid + half)).max(DVec3::ZERO).length()
+    }
+
+    fn opts() -> StateOptions {
+        StateOptions { hz: 20, aoi_m: 12.0, bytes_per_s: 16 * 1024, full_every: 10 }
+    }
+
+    fn decoded(p: &Publish) -> StateFrame {
+        match decode::<ServerMessage>(&p.bytes, p.encoding, impact_protocol::limits::MAX_SERVER_MESSAGE_BYTES).unwrap()
+        {
+            ServerMessage::State(f) => f,
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn the_world_stream_keeps_a_receiver_equal_to_the_world() {
+        let (mut w, _) = arena(0);
+        let mut s = Streams::new(WorldId::new("arena").unwrap(), opts(), Encoding::MsgPack);
+        let mut held = BTreeMap::new();
+        let statics = w.statics.id.len();
+        for frame in 0..25u32 {
+            // Move a third of the balls, and remove one body now and then.
+            for (i, p) in w.bodies.pos.iter_mut().enumerate() {
+                if i % 3 == frame as usize % 3 {
+                    p.x += 0.01 * f64::from(frame);
+                }
+            }
+            if frame % 7 == 6 {
+                let mut dead = vec![false; w.bodies.len()];
+                dead[w.bodies.len() / 2] = true;
+                w.bodies.remove_flagged(&dead);
+            }
+            w.tick = Tick(frame);
+            let out = s.frames(&Capture::of(&w, Vec::new()), true, true);
+            assert_eq!(out.len(), 1);
+            let f = decoded(&out[0]);
+            assert_eq!(f.frame, frame);
+            assert_eq!(f.full, frame % 10 == 0, "frame {frame}");
+            apply(&mut held, &f);
+            assert_eq!(held.len(), w.bodies.len() + statics, "frame {frame}");
+            for i in 0..w.bodies.len() {
+                let (m, info) = &held[&w.bodies.id[i]];
+                assert_eq!(m.1, f32x3(w.bodies.pos[i]), "body {} at frame {frame}", w.bodies.id[i]);
+                assert!(!info.as_ref().unwrap().fixed);
+            }
+            if !f.full && frame % 3 != 0 {
+                // A delta carries the bodies that moved, not the others.
+                assert!(f.moved.len() < w.bodies.len() / 2 + 2, "frame {frame}: {} moved", f.moved.len());
+            }
+        }
+    }
+
+    #[test]
+    fn a_client_stream_shows_its_area_nearest_first_within_its_budget() {
+        let (mut w, viewers) = arena(4);
+        let o = opts();
+        let mut s = Streams::new(WorldId::new("arena").unwrap(), o.clone(), Encoding::MsgPack);
+        let mut held: Vec<BTreeMap<EntityId, (BodyMotion, Option<BodyInfo>)>> = vec![BTreeMap::new(); viewers.len()];
+        let mut sent = vec![0usize; viewers.len()];
+        let frames = 60u32;
+        for frame in 0..frames {
+            for p in w.bodies.pos.iter_mut() {
+                p.z += 0.05;
+            }
+            let out = s.frames(&Capture::of(&w, viewers.clone()), false, true);
+            assert_eq!(out.len(), viewers.len(), "no world stream when nobody listens");
+            for (k, p) in out.iter().enumerate() {
+                let f = decoded(p);
+                assert_eq!(p.key, format!("impact/v1/arena/client/{}/state", k + 1));
+                sent[k] += p.bytes.len();
+                assert!(p.bytes.len() <= estimate(&f), "{} bytes, estimated {}", p.bytes.len(), estimate(&f));
+                let c = f.centre.unwrap();
+                let centre = DVec3::new(f64::from(c[0]), f64::from(c[1]), f64::from(c[2]));
+                apply(&mut held[k], &f);
+                // Everything it holds is in its area (distance to the body's bounds).
+                for (m, info) in held[k].values() {
+                    let d = distance(m, info.as_ref().unwrap(), centre);
+                    assert!(d <= o.aoi_m + 0.06, "frame {frame}: {} at {d} m", m.0);
+                }
+                // Its own avatar is the nearest body: always shown.
+                assert!(held[k].contains_key(&viewers[k].avatar));
+                if frame == 0 {
+                    // The first (full) frame: the budget binds, and what it sent is nearer
+                    // than what it deferred.
+                    assert!(f.deferred > 0, "the budget should bind in a 12 m area of the arena");
+                    let motion = |e: EntityId| *f.moved.iter().find(|m| m.0 == e).unwrap();
+                    let farthest_sent =
+                        f.entered.iter().map(|i| distance(&motion(i.entity), i, centre)).fold(0.0, f64::max);
+                    s.near(centre);
+                    let closer = s.scratch.iter().filter(|(d, _)| *d < farthest_sent - 1e-3).count();
+                    assert!(closer <= f.entered.len(), "{closer} bodies nearer than the farthest sent");
+                }
+            }
+        }
+        // The token bucket: at most a second's worth above the rate, over the run.
+        let seconds = f64::from(frames) / f64::from(o.hz);
+        for (k, b) in sent.iter().enumerate() {
+            let bound = f64::from(o.bytes_per_s) * (seconds + 1.0);
+            assert!((*b as f64) <= bound, "client {k}: {b} bytes in {seconds} s, bound {bound}");
+            assert!((*b as f64) > 0.5 * f64::from(o.bytes_per_s) * seconds, "client {k} used little: {b}");
+        }
+    }
+
+    #[test]
+    fn a_body_that_leaves_the_area_is_said_to_leave() {
+        let (mut w, viewers) = arena(1);
+        let mut s = Streams::new(
+            WorldId::new("arena").unwrap(),
+            StateOptions { bytes_per_s: 1 << 24, ..opts() },
+            Encoding::Json,
+        );
+        let f0 = decoded(&s.frames(&Capture::of(&w, viewers.clone()), false, true)[0]);
+        let avatar = viewers[0].avatar;
+        let near = f0.moved.iter().find(|m| m.0 != avatar && w.bodies.slot(m.0).is_some()).unwrap().0;
+        let slot = w.bodies.slot(near).unwrap();
+        w.bodies.pos[slot] = DVec3::new(28.0, 18.0, 28.0);
+        let f1 = decoded(&s.frames(&Capture::of(&w, viewers), false, true)[0]);
+        assert!(!f1.full);
+        assert_eq!(f1.left, vec![near]);
+        assert!(f1.moved.iter().all(|m| m.0 != near));
+    }
+}
