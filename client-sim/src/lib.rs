@@ -7,6 +7,7 @@
 //! - [`load`]: the load generator behind `impact-sim`.
 //! - [`timing`]: how a client times its inputs (behind or ahead) and the margins it is told.
 //! - [`report`]: its report (human summary, JSON, SVG histogram).
+//! - [`web`]: the live web viewer (`impact-inspect web`).
 //! - [`process`]: real processes (servers, zenohd routers) for deployment tests and benchmarks.
 
 pub mod delay;
@@ -16,3 +17,4 @@ pub mod process;
 pub mod report;
 pub mod timing;
 pub mod view;
+pub mod web;

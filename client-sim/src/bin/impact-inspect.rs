@@ -72,6 +72,12 @@ enum Cmd {
         #[arg(long)]
         to: u32,
     },
+    /// Serve a live view of a world in the browser (state, events, corrections, stats).
+    Web {
+        /// Where the page is served (`host:port`).
+        #[arg(long, default_value = "127.0.0.1:8080")]
+        listen: String,
+    },
 }
 
 struct Filter {
@@ -185,7 +191,54 @@ fn main() -> Result<()> {
             query(&a, world, keys::QUERY_STATE, &tick.map(|t| format!("tick={t}")).unwrap_or_default(), &f)
         }
         Some(Cmd::History { from, to }) => query(&a, world, keys::QUERY_HISTORY, &format!("from={from};to={to}"), &f),
+        Some(Cmd::Web { listen }) => web(&a, world, listen),
         None => tap(&a, world, &f),
+    }
+}
+
+/// Serves the viewer until Ctrl-C.
+fn web(a: &Args, world: Option<WorldId>, listen: &str) -> Result<()> {
+    let session = open(a)?;
+    let world = match world {
+        Some(w) => w,
+        None => only_world(&session, &a.connect)?,
+    };
+    let viewer = impact_client_sim::web::Viewer::start(&session, &world, listen)?;
+    println!("impact-inspect: viewer of world {world} at {}  (Ctrl-C to stop)", viewer.url());
+    let (tx, rx) = std::sync::mpsc::channel();
+    ctrlc::set_handler(move || {
+        let _ = tx.send(());
+    })
+    .context("installing the Ctrl-C handler")?;
+    let _ = rx.recv();
+    if viewer.dropped() > 0 {
+        println!("{} messages were dropped for pages that fell behind", viewer.dropped());
+    }
+    Ok(())
+}
+
+/// The one world served where we are connected (each server declares a liveliness token per
+/// world); an error naming them when there are several, or none.
+fn only_world(session: &zenoh::Session, connect: &[String]) -> Result<WorldId> {
+    let replies = session
+        .liveliness()
+        .get(keys::SERVER.any_world())
+        .timeout(Duration::from_secs(3))
+        .wait()
+        .map_err(|e| anyhow::anyhow!("looking for servers: {e}"))?;
+    let mut worlds = std::collections::BTreeSet::new();
+    while let Ok(reply) = replies.recv() {
+        if let Ok(sample) = reply.result() {
+            if let Ok((w, _)) = keys::SERVER.parse(sample.key_expr().as_str()) {
+                worlds.insert(w);
+            }
+        }
+    }
+    let names: Vec<String> = worlds.iter().map(ToString::to_string).collect();
+    match worlds.len() {
+        1 => Ok(worlds.into_iter().next().expect("one world")),
+        0 => bail!("no impact server answered at {}: start one, or give --world", connect.join(", ")),
+        _ => bail!("several worlds are served there ({}): pick one with --world", names.join(", ")),
     }
 }
 

@@ -89,6 +89,9 @@ struct Args {
     /// 80 +- 20 ms latency and 1 % loss unless those flags are given.
     #[arg(long)]
     demo: bool,
+    /// With --demo: serve the live viewer here (`host:port`; a free port if this one is taken).
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    viewer: String,
 }
 
 fn parse_duration(s: &str) -> Result<Duration, String> {
@@ -106,6 +109,7 @@ fn parse_duration(s: &str) -> Result<Duration, String> {
 fn main() -> Result<()> {
     let mut a = Args::parse();
     let mut demo_server = None;
+    let mut demo_viewer = None;
     if a.demo {
         let given = |name: &str| std::env::args().any(|x| x == name || x.starts_with(&format!("{name}=")));
         if !given("--clients") {
@@ -127,9 +131,15 @@ fn main() -> Result<()> {
         );
         let opts = impact_server::runtime::ServerOptions { listen: vec![endpoint.clone()], ..Default::default() };
         demo_server = Some(impact_server::runtime::start(scene, opts)?);
-        a.connect = vec![endpoint];
+        a.connect = vec![endpoint.clone()];
         a.world = "arena".into();
         std::thread::sleep(Duration::from_millis(300));
+        let session = net::open(&[endpoint], None, None, net::Mode::Peer)?;
+        let world = WorldId::new("arena").map_err(anyhow::Error::msg)?;
+        let viewer = impact_client_sim::web::Viewer::start(&session, &world, &a.viewer)
+            .or_else(|_| impact_client_sim::web::Viewer::start(&session, &world, "127.0.0.1:0"))?;
+        eprintln!("demo: watch it live at {}", viewer.url());
+        demo_viewer = Some((viewer, session));
     }
     if !(0.0..=1.0).contains(&a.loss) {
         bail!("--loss {} must be in [0, 1]", a.loss);
@@ -176,6 +186,7 @@ fn main() -> Result<()> {
     );
     let report = load::run(&cfg)?;
     println!("{report}");
+    drop(demo_viewer.take());
     if let Some(server) = demo_server.take() {
         println!("server:\n{}", server.stop());
     }

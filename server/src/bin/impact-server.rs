@@ -108,8 +108,9 @@ struct Args {
     /// its avatar on `client/{id}/state` (PROTOCOL.md, "State streams"). 0 turns them off.
     #[arg(long, default_value_t = 20)]
     state_hz: u32,
-    /// Radius of a client's area of interest around its avatar, metres.
-    #[arg(long, default_value_t = 20.0)]
+    /// Radius of a client's area of interest around its avatar, metres. Its cost grows with the
+    /// bodies inside it (BENCHMARKS.md, "State streams").
+    #[arg(long, default_value_t = 10.0)]
     aoi_m: f64,
     /// Bytes per second one client's state stream may use on average (the nearest bodies go
     /// first when a frame would exceed it).

@@ -156,7 +156,8 @@ pub struct Summary {
     pub state_client_bytes: u64,
     /// Bytes on the world stream.
     pub state_world_bytes: u64,
-    /// Client-seconds served by the client streams (a client's frame counts 1/hz s).
+    /// Client-seconds served by the client streams (each frame counts 1/hz s of a listening
+    /// client).
     pub state_client_s: f64,
     /// Seconds the state thread spent building, encoding and publishing.
     pub state_busy_s: f64,
@@ -587,8 +588,6 @@ struct TickLoop {
     state_counters: Arc<StateCounters>,
     /// The state frame the last capture was for.
     state_frame: Option<u64>,
-    /// Client-seconds the client state streams served.
-    state_client_s: f64,
     metrics: Option<WorldMetrics>,
     period_events: u64,
     period_rollbacks: u32,
@@ -639,7 +638,6 @@ impl TickLoop {
             state_tx: None,
             state_counters: Arc::new(StateCounters::default()),
             state_frame: None,
-            state_client_s: 0.0,
             metrics,
             period_events: 0,
             period_rollbacks: 0,

@@ -21,7 +21,7 @@ use impact_protocol::{
     encode, keys, BodyInfo, BodyMotion, BodyShape, ClientId, Encoding, EntityId, ServerMessage, StateFrame, Tick,
     WorldId,
 };
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::Receiver;
 use std::sync::Arc;
@@ -42,7 +42,7 @@ pub struct StateOptions {
 
 impl Default for StateOptions {
     fn default() -> Self {
-        StateOptions { hz: 20, aoi_m: 20.0, bytes_per_s: 32 * 1024, full_every: 40 }
+        StateOptions { hz: 20, aoi_m: 10.0, bytes_per_s: 32 * 1024, full_every: 40 }
     }
 }
 
@@ -133,6 +133,82 @@ enum Src {
     Terrain,
 }
 
+/// A body filed in a grid cell: its bounds beside its index, so a search reads cells in order.
+#[derive(Clone, Copy, Debug)]
+struct Filed {
+    lo: DVec3,
+    hi: DVec3,
+    i: u32,
+}
+
+/// The bodies filed by the cell their centre is in, in a dense grid over the centres' bounds:
+/// cells in (x, y, z) order, z fastest, each cell's bodies together, so a search reads each
+/// (x, y) row of cells as one slice (no hashing, no pointer chasing).
+#[derive(Debug, Default)]
+struct Grid {
+    origin: DVec3,
+    size: f64,
+    dims: [i64; 3],
+    /// `start[k]..start[k + 1]` are cell `k`'s bodies in `items`.
+    start: Vec<u32>,
+    items: Vec<Filed>,
+}
+
+/// Most cells a grid has; a world wider than this many cells of the asked size gets bigger cells.
+const MAX_CELLS: i64 = 1 << 20;
+
+impl Grid {
+    fn cell_of(&self, p: DVec3) -> [i64; 3] {
+        let q = ((p - self.origin) / self.size).floor();
+        [q.x as i64, q.y as i64, q.z as i64]
+    }
+
+    fn index(&self, c: [i64; 3]) -> usize {
+        ((c[0] * self.dims[1] + c[1]) * self.dims[2] + c[2]) as usize
+    }
+
+    /// Files `bodies` in cells of (at least) `size`.
+    fn build(&mut self, size: f64, bodies: &[Filed]) {
+        self.items.clear();
+        self.start.clear();
+        if bodies.is_empty() {
+            self.dims = [0; 3];
+            return;
+        }
+        let centre = |f: &Filed| (f.lo + f.hi) * 0.5;
+        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+        for f in bodies {
+            lo = lo.min(centre(f));
+            hi = hi.max(centre(f));
+        }
+        self.origin = lo;
+        self.size = size;
+        loop {
+            let d = ((hi - lo) / self.size).floor() + DVec3::ONE;
+            self.dims = [d.x as i64, d.y as i64, d.z as i64];
+            if d.x * d.y * d.z <= MAX_CELLS as f64 {
+                break;
+            }
+            self.size *= 2.0;
+        }
+        let cells = (self.dims[0] * self.dims[1] * self.dims[2]) as usize;
+        self.start.resize(cells + 1, 0);
+        let keys: Vec<usize> = bodies.iter().map(|f| self.index(self.cell_of(centre(f)))).collect();
+        for &k in &keys {
+            self.start[k + 1] += 1;
+        }
+        for k in 0..cells {
+            self.start[k + 1] += self.start[k];
+        }
+        let mut at: Vec<u32> = self.start[..cells].to_vec();
+        self.items.resize(bodies.len(), bodies[0]);
+        for (f, &k) in bodies.iter().zip(&keys) {
+            self.items[at[k] as usize] = *f;
+            at[k] += 1;
+        }
+    }
+}
+
 /// What a receiver holds: the bodies it was sent, in entity order, and the motion it was sent.
 #[derive(Debug, Default)]
 struct Held {
@@ -177,11 +253,26 @@ pub struct Streams {
     clients: BTreeMap<ClientId, Held>,
     frames: u32,
     entries: Vec<Entry>,
-    /// Cells of `aoi_m` -> indices into `entries` of the bodies centred there.
-    grid: HashMap<(i64, i64, i64), Vec<u32>>,
+    /// The bodies no larger than half `aoi_m`, by cell of half `aoi_m`.
+    grid: Grid,
+    filed: Vec<Filed>,
     /// Bodies larger than a cell, tested against every client.
     large: Vec<u32>,
+    /// The largest half size of a body in the grid.
+    reach: f64,
     scratch: Vec<(f64, u32)>,
+    counts: StreamCounts,
+}
+
+/// What the client streams showed, summed over their frames.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StreamCounts {
+    /// Client frames built.
+    pub client_frames: u64,
+    /// Bodies in the clients' areas.
+    pub in_area: u64,
+    /// Bodies sent (entered or moved).
+    pub sent: u64,
 }
 
 /// A frame ready to publish.
@@ -193,6 +284,8 @@ pub struct Publish {
     pub bytes: Vec<u8>,
     /// Its encoding.
     pub encoding: Encoding,
+    /// The client whose stream it is (`None`: the world stream).
+    pub client: Option<ClientId>,
     /// Bodies its budget held back.
     pub deferred: u32,
     /// The frame (kept for tests; `None` in the running server).
@@ -210,11 +303,19 @@ impl Streams {
             clients: BTreeMap::new(),
             frames: 0,
             entries: Vec::new(),
-            grid: HashMap::new(),
+            grid: Grid::default(),
+            filed: Vec::new(),
             large: Vec::new(),
+            reach: 0.0,
             scratch: Vec::new(),
+            counts: StreamCounts::default(),
             opts,
         }
+    }
+
+    /// What the client streams showed so far.
+    pub fn counts(&self) -> StreamCounts {
+        self.counts
     }
 
     /// Builds this capture's frames: the world stream's (when `world` says someone listens),
@@ -231,7 +332,7 @@ impl Streams {
             let world_key = self.world_key.clone();
             let full = full || self.world.bodies.is_empty();
             let frame = build(&mut self.world, &self.entries, cap, &all, None, full, None);
-            out.extend(publish(world_key, frame, self.encoding, keep));
+            out.extend(publish(world_key, None, frame, self.encoding, keep));
         } else {
             self.world.bodies.clear();
         }
@@ -258,11 +359,19 @@ impl Streams {
             let full = full || held.frame == 0;
             let frame = build(held, &self.entries, cap, &self.scratch, Some(held.tokens), full, Some(c));
             held.tokens = (held.tokens - estimate(&frame) as f64).max(0.0);
-            out.extend(publish(held.key.clone(), frame, v.encoding, keep));
+            self.counts.client_frames += 1;
+            self.counts.in_area += self.scratch.len() as u64;
+            self.counts.sent += frame.moved.len() as u64;
+            out.extend(publish(held.key.clone(), Some(v.client), frame, v.encoding, keep));
         }
         // A client gone (or without an avatar) starts again from a full frame when it returns.
         self.clients.retain(|c, _| seen.contains(c));
         out
+    }
+
+    /// The grid's cell size: half the area's radius.
+    fn cell(&self) -> f64 {
+        (self.opts.aoi_m * 0.5).max(1e-3)
     }
 
     /// Lays the capture out in entity order and files it into the grid.
@@ -293,18 +402,20 @@ impl Streams {
         });
         self.entries.extend(statics.chain(terrain).chain(dynamic));
         self.entries.sort_by_key(|e| e.motion.0);
-        self.grid.values_mut().for_each(Vec::clear);
         self.large.clear();
-        let cell = self.opts.aoi_m.max(1e-3);
+        self.filed.clear();
+        self.reach = 0.0;
+        let cell = self.cell();
         for (i, e) in self.entries.iter().enumerate() {
             let half = (e.hi - e.lo) * 0.5;
             if half.max_element() > cell {
                 self.large.push(i as u32);
                 continue;
             }
-            let m = (e.hi + e.lo) * 0.5 / cell;
-            self.grid.entry((m.x.floor() as i64, m.y.floor() as i64, m.z.floor() as i64)).or_default().push(i as u32);
+            self.reach = self.reach.max(half.max_element());
+            self.filed.push(Filed { lo: e.lo, hi: e.hi, i: i as u32 });
         }
+        self.grid.build(cell, &self.filed);
     }
 
     /// The bodies within `aoi_m` of `c` (distance to their bounds) into `scratch`, as
@@ -312,47 +423,73 @@ impl Streams {
     fn near(&mut self, c: DVec3) {
         self.scratch.clear();
         let r = self.opts.aoi_m;
-        let cell = r.max(1e-3);
-        let m = c / cell;
-        let (x, y, z) = (m.x.floor() as i64, m.y.floor() as i64, m.z.floor() as i64);
-        let dist = |e: &Entry| (e.lo - c).max(c - e.hi).max(DVec3::ZERO).length();
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    if let Some(list) = self.grid.get(&(x + dx, y + dy, z + dz)) {
-                        for &i in list {
-                            let d = dist(&self.entries[i as usize]);
-                            if d <= r {
-                                self.scratch.push((d, i));
-                            }
+        // Squared distances: the square root only for the bodies kept.
+        let (r2, dist2) = (r * r, |lo: DVec3, hi: DVec3| (lo - c).max(c - hi).max(DVec3::ZERO).length_squared());
+        // A body in the area has its centre within the radius plus its own half size (at most
+        // `reach`) of the centre: the cells whose box, grown by `reach`, the area touches.
+        let g = &self.grid;
+        let span = DVec3::splat(r + self.reach);
+        let (lo, hi) = (g.cell_of(c - span), g.cell_of(c + span));
+        let clamp = |v: i64, k: usize| v.clamp(0, g.dims[k] - 1);
+        if (0..3).all(|k| hi[k] >= 0 && lo[k] < g.dims[k]) {
+            let (z0, z1) = (clamp(lo[2], 2), clamp(hi[2], 2));
+            let grow = DVec3::splat(self.reach);
+            for x in clamp(lo[0], 0)..=clamp(hi[0], 0) {
+                for y in clamp(lo[1], 1)..=clamp(hi[1], 1) {
+                    // The row of cells z0..=z1 at (x, y), grown by `reach`: skipped if the area
+                    // misses it.
+                    let row_lo = g.origin + DVec3::new(x as f64, y as f64, z0 as f64) * g.size - grow;
+                    let row_hi = g.origin + DVec3::new((x + 1) as f64, (y + 1) as f64, (z1 + 1) as f64) * g.size + grow;
+                    if dist2(row_lo, row_hi) > r2 {
+                        continue;
+                    }
+                    let (a, b) = (g.start[g.index([x, y, z0])], g.start[g.index([x, y, z1]) + 1]);
+                    for f in &g.items[a as usize..b as usize] {
+                        let d2 = dist2(f.lo, f.hi);
+                        if d2 <= r2 {
+                            self.scratch.push((d2.sqrt(), f.i));
                         }
                     }
                 }
             }
         }
         for &i in &self.large {
-            let d = dist(&self.entries[i as usize]);
-            if d <= r {
-                self.scratch.push((d, i));
+            let e = &self.entries[i as usize];
+            let d2 = dist2(e.lo, e.hi);
+            if d2 <= r2 {
+                self.scratch.push((d2.sqrt(), i));
             }
         }
-        self.scratch.sort_by_key(|&(_, i)| i);
+        self.scratch.sort_unstable_by_key(|&(_, i)| i);
     }
+}
+
+/// A body's class id.
+fn class_of(cap: &Capture, e: &Entry) -> Option<crate::sim::world::ClassId> {
+    match e.src {
+        Src::Dynamic(i) => Some(cap.table.class[i]),
+        Src::Static(i) => Some(cap.statics.class[i]),
+        Src::Terrain => cap.statics.terrain.as_ref().map(|t| t.class),
+    }
+}
+
+/// A body's class name ("" if the class is unknown).
+fn class_name<'a>(cap: &'a Capture, e: &Entry) -> &'a str {
+    class_of(cap, e).and_then(|c| cap.config.classes.props.get(c.0 as usize)).map_or("", |p| p.name.as_str())
 }
 
 fn info(cap: &Capture, e: &Entry) -> BodyInfo {
     let half = (e.hi - e.lo) * 0.5;
     let pos = DVec3::new(f64::from(e.motion.1[0]), f64::from(e.motion.1[1]), f64::from(e.motion.1[2]));
     let offset = (e.hi + e.lo) * 0.5 - pos;
-    let (class, owner, shape) = match e.src {
-        Src::Dynamic(i) => (Some(cap.table.class[i]), cap.table.owner[i], shape_of(&cap.table.shape[i])),
-        Src::Static(i) => (Some(cap.statics.class[i]), None, shape_of(&cap.statics.shape[i])),
-        Src::Terrain => (cap.statics.terrain.as_ref().map(|t| t.class), None, BodyShape::Terrain),
+    let (owner, shape) = match e.src {
+        Src::Dynamic(i) => (cap.table.owner[i], shape_of(&cap.table.shape[i])),
+        Src::Static(i) => (None, shape_of(&cap.statics.shape[i])),
+        Src::Terrain => (None, BodyShape::Terrain),
     };
-    let props = class.and_then(|c| cap.config.classes.props.get(c.0 as usize));
     BodyInfo {
         entity: e.motion.0,
-        class: props.map_or_else(String::new, |p| p.name.clone()),
+        class: class_name(cap, e).to_string(),
         owner,
         shape,
         half_extents_m: f32x3(half),
@@ -441,14 +578,22 @@ fn build(
     if full {
         keep.clear();
     }
-    wants.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    // Only as many as the budget could hold at the cheapest need ordering: pick them, sort them;
+    // the rest wait (in any order: each just waits).
+    let cmp = |a: &(f64, EntityId, u32, Want), b: &(f64, EntityId, u32, Want)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
+    let fit = budget.map_or(wants.len(), |b| ((b - spend as f64).max(0.0) / MOTION_BYTES as f64) as usize + 1);
+    if fit < wants.len() {
+        wants.select_nth_unstable_by(fit, cmp);
+        wants[..fit].sort_by(cmp);
+    } else {
+        wants.sort_by(cmp);
+    }
     let mut entered: Vec<HeldBody> = Vec::new();
     for (_, _, i, want) in wants {
         let e = &entries[i as usize];
-        let about = matches!(want, Want::Enter).then(|| info(cap, e));
-        let cost = match &about {
-            Some(i) => INFO_BYTES + i.class.len() + MOTION_BYTES,
-            None => MOTION_BYTES,
+        let cost = match want {
+            Want::Enter => INFO_BYTES + class_name(cap, e).len() + MOTION_BYTES,
+            Want::Move(_) => MOTION_BYTES,
         };
         if let Some(b) = budget {
             if (spend + cost) as f64 > b {
@@ -461,18 +606,18 @@ fn build(
         }
         spend += cost;
         frame.moved.push(e.motion);
-        match (want, about) {
-            (Want::Move(k), _) => keep[k] = HeldBody { motion: e.motion, waited: 0 },
-            (Want::Enter, about) => {
-                frame.entered.extend(about);
+        match want {
+            Want::Move(k) => keep[k] = HeldBody { motion: e.motion, waited: 0 },
+            Want::Enter => {
+                frame.entered.push(info(cap, e));
                 entered.push(HeldBody { motion: e.motion, waited: 0 });
             }
         }
     }
     keep.extend(entered);
-    keep.sort_by_key(|b| b.motion.0);
-    frame.moved.sort_by_key(|m| m.0);
-    frame.entered.sort_by_key(|i| i.entity);
+    keep.sort_unstable_by_key(|b| b.motion.0);
+    frame.moved.sort_unstable_by_key(|m| m.0);
+    frame.entered.sort_unstable_by_key(|i| i.entity);
     held.bodies = keep;
     frame
 }
@@ -483,7 +628,13 @@ fn estimate(f: &StateFrame) -> usize {
     FRAME_BYTES + infos + f.moved.len() * MOTION_BYTES + f.left.len() * LEFT_BYTES
 }
 
-fn publish(key: String, frame: StateFrame, encoding: Encoding, keep: bool) -> Option<Publish> {
+fn publish(
+    key: String,
+    client: Option<ClientId>,
+    frame: StateFrame,
+    encoding: Encoding,
+    keep: bool,
+) -> Option<Publish> {
     let deferred = frame.deferred;
     let msg = ServerMessage::State(frame);
     let bytes = encode(&msg, encoding).ok()?;
@@ -491,10 +642,27 @@ fn publish(key: String, frame: StateFrame, encoding: Encoding, keep: bool) -> Op
         ServerMessage::State(f) if keep => Some(f),
         _ => None,
     };
-    Some(Publish { key, bytes, encoding, deferred, frame })
+    Some(Publish { key, bytes, encoding, client, deferred, frame })
+}
+
+/// Whether anyone subscribes to what `p` publishes (`true` when it cannot tell).
+fn matching(p: Option<&zenoh::pubsub::Publisher<'static>>) -> bool {
+    use zenoh::Wait;
+    p.is_none_or(|p| p.matching_status().wait().map(|m| m.matching()).unwrap_or(true))
+}
+
+/// A client's publisher, and whether it was listening when last asked.
+struct Listener {
+    publisher: Option<zenoh::pubsub::Publisher<'static>>,
+    listening: bool,
+    next_check: u64,
 }
 
 /// The state thread: builds and publishes frames for every capture until the queue closes.
+///
+/// Streams nobody subscribes to are not built: the world stream's publisher is asked every frame,
+/// each client's once a second (a client that subscribes is seen within a second and starts with
+/// a full frame), so players that never look at the state cost only the question.
 pub fn run(
     session: zenoh::Session,
     world: WorldId,
@@ -504,32 +672,54 @@ pub fn run(
     counters: Arc<StateCounters>,
 ) {
     use zenoh::Wait;
-    let world_key = keys::STATE.key(&world, None);
-    // A declared publisher knows whether anyone subscribes: the world stream (every body, the
-    // viewer's and tools' stream) is built only when someone does.
-    let publisher = session.declare_publisher(world_key.clone()).wait().ok();
-    let mut streams = Streams::new(world, opts, encoding);
-    for cap in rx {
+    let drop = zenoh::qos::CongestionControl::Drop;
+    let publisher = |key: String| session.declare_publisher(key).congestion_control(drop).wait().ok();
+    let world_publisher = publisher(keys::STATE.key(&world, None));
+    let mut listeners: BTreeMap<ClientId, Listener> = BTreeMap::new();
+    let check_every = u64::from(opts.hz.max(1));
+    let mut streams = Streams::new(world.clone(), opts, encoding);
+    for (n, mut cap) in rx.into_iter().enumerate() {
         let t0 = Instant::now();
-        let listened =
-            publisher.as_ref().is_none_or(|p| p.matching_status().wait().map(|m| m.matching()).unwrap_or(true));
-        let frames = streams.frames(&cap, listened, false);
+        let n = n as u64;
+        listeners.retain(|c, _| cap.viewers.iter().any(|v| v.client == *c));
+        cap.viewers.retain(|v| {
+            let l = listeners.entry(v.client).or_insert_with(|| Listener {
+                publisher: publisher(keys::CLIENT_STATE.key(&world, Some(v.client))),
+                listening: false,
+                next_check: n,
+            });
+            if n >= l.next_check {
+                l.listening = matching(l.publisher.as_ref());
+                l.next_check = n + check_every;
+            }
+            l.listening
+        });
+        let frames = streams.frames(&cap, matching(world_publisher.as_ref()), false);
         let mut deferred = 0;
         for p in frames {
-            let n = p.bytes.len() as u64;
-            if p.key == world_key {
-                counters.world_frames.fetch_add(1, Ordering::Relaxed);
-                counters.world_bytes.fetch_add(n, Ordering::Relaxed);
-            } else {
-                counters.client_frames.fetch_add(1, Ordering::Relaxed);
-                counters.client_bytes.fetch_add(n, Ordering::Relaxed);
-            }
+            let len = p.bytes.len() as u64;
+            let target = match p.client {
+                None => {
+                    counters.world_frames.fetch_add(1, Ordering::Relaxed);
+                    counters.world_bytes.fetch_add(len, Ordering::Relaxed);
+                    world_publisher.as_ref()
+                }
+                Some(c) => {
+                    counters.client_frames.fetch_add(1, Ordering::Relaxed);
+                    counters.client_bytes.fetch_add(len, Ordering::Relaxed);
+                    listeners.get(&c).and_then(|l| l.publisher.as_ref())
+                }
+            };
             deferred += u64::from(p.deferred);
-            let _ = session
-                .put(p.key, p.bytes)
-                .encoding(p.encoding.zenoh_tag())
-                .congestion_control(zenoh::qos::CongestionControl::Drop)
-                .wait();
+            match target {
+                Some(publisher) => {
+                    let _ = publisher.put(p.bytes).encoding(p.encoding.zenoh_tag()).wait();
+                }
+                None => {
+                    let _ =
+                        session.put(p.key, p.bytes).encoding(p.encoding.zenoh_tag()).congestion_control(drop).wait();
+                }
+            }
         }
         counters.deferred.fetch_add(deferred, Ordering::Relaxed);
         counters.busy_ns.fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
@@ -701,6 +891,17 @@ mod tests {
             Encoding::Json,
         );
         let f0 = decoded(&s.frames(&Capture::of(&w, viewers.clone()), false, true)[0]);
+        // With the budget out of the way, the stream shows exactly the bodies in the area.
+        let c = w.bodies.pos[w.bodies.slot(viewers[0].avatar).unwrap()];
+        let mut expected: Vec<EntityId> = s
+            .entries
+            .iter()
+            .filter(|e| (e.lo - c).max(c - e.hi).max(DVec3::ZERO).length() <= s.opts.aoi_m)
+            .map(|e| e.motion.0)
+            .collect();
+        expected.sort();
+        assert!(expected.len() > 20, "{} bodies in the area", expected.len());
+        assert_eq!(f0.moved.iter().map(|m| m.0).collect::<Vec<_>>(), expected);
         let avatar = viewers[0].avatar;
         let near = f0.moved.iter().find(|m| m.0 != avatar && w.bodies.slot(m.0).is_some()).unwrap().0;
         let slot = w.bodies.slot(near).unwrap();

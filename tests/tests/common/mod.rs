@@ -2,6 +2,7 @@
 //! a bounded wait for messages.
 #![allow(dead_code)]
 
+pub mod browser;
 pub mod process;
 
 use impact_protocol::{encode, keys, ClientId, ClientInput, ClientMessage, Encoding, ServerMessage, WorldId};

@@ -12,6 +12,7 @@ mod rest;
 mod rollback;
 mod scale;
 mod stability;
+mod state;
 mod zenoh_rate;
 
 use anyhow::Result;
@@ -47,6 +48,8 @@ enum Suite {
     /// Numerical stress cases (far from the origin, scale, degenerate, speed, pile, energy,
     /// rollback).
     Stability(stability::StabilityArgs),
+    /// What the state streams cost beside the tick: areas of interest, deltas, budgets.
+    State(state::StateArgs),
     /// Raw Zenoh pub/sub throughput beside the event rate one subscriber receives from impact.
     Zenoh(zenoh_rate::ZenohArgs),
     /// What `--users` costs: ACL size, session open, client connect, input round trip.
@@ -65,5 +68,6 @@ fn main() -> Result<()> {
         Suite::Stability(a) => stability::run(&a),
         Suite::Rest(a) => rest::run(&a),
         Suite::Hitscan(a) => hitscan::run(&a),
+        Suite::State(a) => state::run(&a),
     }
 }

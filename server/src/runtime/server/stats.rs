@@ -46,13 +46,9 @@ impl TickLoop {
             .filter(|(_, s)| s.present)
             .filter_map(|(c, s)| s.avatar.map(|avatar| Viewer { client: *c, avatar, encoding: s.encoding }))
             .collect();
-        let n = viewers.len();
         let cap = Capture::of(self.session.world(), viewers);
-        match tx.try_send(cap) {
-            Ok(()) => self.state_client_s += n as f64 / hz as f64,
-            Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) => {
-                self.state_counters.skipped.fetch_add(1, Ordering::Relaxed);
-            }
+        if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) = tx.try_send(cap) {
+            self.state_counters.skipped.fetch_add(1, Ordering::Relaxed);
         }
         self.state_counters.capture_ns.fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
     }
@@ -63,7 +59,8 @@ impl TickLoop {
         summary.state_client_frames = c.client_frames.load(Ordering::Relaxed);
         summary.state_client_bytes = c.client_bytes.load(Ordering::Relaxed);
         summary.state_world_bytes = c.world_bytes.load(Ordering::Relaxed);
-        summary.state_client_s = self.state_client_s;
+        // Each client frame stands for 1/hz of a client's second.
+        summary.state_client_s = summary.state_client_frames as f64 / f64::from(self.opts.state.hz.max(1));
         summary.state_busy_s = c.busy_ns.load(Ordering::Relaxed) as f64 / 1e9;
         summary.state_capture_s = c.capture_ns.load(Ordering::Relaxed) as f64 / 1e9;
         summary.state_skipped = c.skipped.load(Ordering::Relaxed);
