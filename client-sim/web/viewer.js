@@ -329,6 +329,7 @@ $("pause").addEventListener("click", () => {
   for (const [e, b] of live.bodies) copy.set(e, { info: b.info, p: b.p.slice(), v: b.v.slice(), asleep: b.asleep });
   frozen = { bodies: copy, tick: live.tick, synced: true };
   $("pause").textContent = "Resume";
+  $("scrub").value = 0;
   $("scrub").disabled = false;
   $("scrub-label").textContent = `tick ${frozen.tick}`;
 });
@@ -339,7 +340,9 @@ $("scrub").addEventListener("input", async () => {
   if (!frozen) return;
   const back = -Number($("scrub").value);
   if (back === 0) { past = null; $("scrub-label").textContent = `tick ${frozen.tick}`; return; }
-  const tick = frozen.tick - back;
+  // The server keeps only its rollback window, which moves on while the page is paused: count
+  // back from the newest tick the stream has told of.
+  const tick = live.tick - back;
   const seq = ++scrubSeq;
   const answer = await fetch(`/api/state?tick=${tick}`).then((r) => r.json()).catch((e) => ({ type: "query_error", detail: String(e) }));
   if (seq !== scrubSeq || !frozen) return;
@@ -354,8 +357,11 @@ $("scrub").addEventListener("input", async () => {
       bodies.set(s.entity, { info, p: s.position, v: s.velocity, asleep: false });
     }
     past = { bodies, tick: answer.tick, synced: true };
-    $("scrub-label").textContent = `tick ${answer.tick} (${back} back)`;
+    $("scrub-label").textContent = `tick ${answer.tick} (${back} back from ${tick + back})`;
   } else {
+    // "... outside the history (oldest A, now B)": let the slider reach no further than that.
+    const held = /oldest (\d+), now (\d+)/.exec(answer.detail || "");
+    if (held) $("scrub").min = String(-Math.max(1, Number(held[2]) - Number(held[1]) - 2));
     $("scrub-label").textContent = answer.detail || "no answer";
   }
 });

@@ -19,12 +19,13 @@ use std::collections::BTreeMap;
 use std::process::Command;
 use std::time::Duration;
 
-fn start_server(extra: &[&str]) -> (Proc, String) {
+/// A server on the arena; `name` names its log (each test its own: they run side by side).
+fn start_server(name: &str, extra: &[&str]) -> (Proc, String) {
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
     let mut cmd = Command::new(server_binary());
     cmd.arg("--scene").arg(impact_server::scene::Scene::bundled_path("arena"));
     cmd.args(["--listen", &endpoint, "--quiet"]).args(extra);
-    let server = Proc::spawn("viewer-server", cmd);
+    let server = Proc::spawn(name, cmd);
     assert!(server.wait_for_output("listening on", Duration::from_secs(30)), "{}", server.output());
     (server, endpoint)
 }
@@ -63,7 +64,7 @@ fn players(
 
 #[test]
 fn the_viewer_draws_the_arena_in_chromium() {
-    let (_server, endpoint) = start_server(&[]);
+    let (_server, endpoint) = start_server("viewer-server", &[]);
     let load = players(&endpoint, 24, 25, 7000);
     let port = free_port();
     let mut cmd = Command::new(binary("impact-inspect"));
@@ -115,7 +116,8 @@ fn the_viewer_draws_the_arena_in_chromium() {
     );
     assert!(stats.is_ok(), "no stats plotted: {stats:?}");
 
-    // Pause, rewind 5 ticks: the page asks the server's state query and draws that tick.
+    // Pause, rewind 5 ticks from the server's present (the window moves on while the page is
+    // paused): the page asks the server's state query and draws that tick.
     b.eval("document.getElementById('pause').click()");
     let paused = b.eval("document.getElementById('status').textContent");
     b.eval(
@@ -173,7 +175,7 @@ fn sample(line: &str) -> Option<(String, BTreeMap<String, String>, f64)> {
 #[test]
 fn metrics_are_served_in_the_prometheus_text_format() {
     let port = free_port();
-    let (server, endpoint) = start_server(&["--metrics", &format!("127.0.0.1:{port}")]);
+    let (server, endpoint) = start_server("metrics-server", &["--metrics", &format!("127.0.0.1:{port}")]);
     assert!(server.output().contains(&format!("metrics: http://127.0.0.1:{port}/metrics")), "{}", server.output());
     let report = players(&endpoint, 12, 4, 7100).join().expect("the load");
     assert!(report.acks > 0);
