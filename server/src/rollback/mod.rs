@@ -20,7 +20,8 @@ pub mod replay;
 pub mod rewind;
 pub mod selective;
 
-use crate::sim::input::{self, Skipped};
+use crate::sim::input;
+use crate::sim::output::Skipped;
 use crate::sim::{Plan, Stepper, SystemAction, TickInput, TickOutput, World};
 use history::{Frame, History};
 use impact_protocol::{

@@ -107,7 +107,7 @@ struct SubRun {
     after: Vec<World>,
     paths: Vec<(Vec<EntityId>, Vec<Aabb>)>,
     rays: Vec<RayResult>,
-    skipped: Vec<crate::sim::input::Skipped>,
+    skipped: Vec<crate::sim::output::Skipped>,
 }
 
 fn simulate(s: &Session, from: Tick, now: Tick, reach: &BTreeSet<EntityId>) -> Option<SubRun> {

@@ -6,8 +6,8 @@
 //! destroyed in a re-simulated past, say), the input is skipped and reported.
 
 use crate::query::ray;
+use crate::sim::output::{Skipped, TickOutput};
 use crate::sim::shape::Shape;
-use crate::sim::step::TickOutput;
 use crate::sim::world::{NewBody, Rule, World};
 use glam::{DQuat, DVec3};
 use impact_protocol::{
@@ -109,21 +109,6 @@ pub fn apply_system(w: &mut World, system: &[SystemAction], out: &mut TickOutput
     if !removed.is_empty() {
         remove(w, &removed, out);
     }
-}
-
-/// An input that did not apply.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Skipped {
-    /// The sender.
-    pub client: ClientId,
-    /// Its sequence number.
-    pub seq: u32,
-    /// The tick it was to apply at.
-    pub tick: Tick,
-    /// Why.
-    pub reason: RejectReason,
-    /// Detail for humans.
-    pub detail: String,
 }
 
 fn owned(w: &World, client: ClientId, e: EntityId) -> Result<usize, (RejectReason, String)> {

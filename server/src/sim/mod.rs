@@ -4,12 +4,14 @@
 
 pub mod input;
 pub mod island;
+pub mod output;
 pub mod plan;
 pub mod shape;
 pub mod step;
 pub mod world;
 
 pub use input::{SystemAction, TickInput};
+pub use output::TickOutput;
 pub use plan::Plan;
-pub use step::{StageStats, Stepper, TickOutput};
+pub use step::{StageStats, Stepper};
 pub use world::World;

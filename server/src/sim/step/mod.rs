@@ -24,7 +24,7 @@ use crate::sim::plan::Plan;
 use crate::sim::shape::{Aabb, Shape};
 use crate::sim::world::{ClassId, Rule, World};
 use glam::{DQuat, DVec3};
-use impact_protocol::{CollisionEvent, EntityId, RayResult, Response};
+use impact_protocol::{EntityId, Response};
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 use std::time::{Duration, Instant};
@@ -98,18 +98,7 @@ impl StageStats {
     }
 }
 
-/// What one tick produced besides the new state.
-#[derive(Clone, Debug, Default)]
-pub struct TickOutput {
-    /// Collision events in `(toi, a, b, phase)` order.
-    pub events: Vec<CollisionEvent>,
-    /// Results of the tick's hitscan rays, in input order.
-    pub rays: Vec<RayResult>,
-    /// Inputs (or actions) that could not apply, with why: `(client, seq, reason)`.
-    pub skipped: Vec<input::Skipped>,
-    /// Avatars spawned by system actions this tick: `(owner, entity)`.
-    pub spawned: Vec<(impact_protocol::ClientId, EntityId)>,
-}
+use crate::sim::output::TickOutput;
 
 #[derive(Clone, Copy, Debug)]
 struct Impact {
