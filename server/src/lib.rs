@@ -1,5 +1,6 @@
 //! impact: an authoritative collision server for multiplayer games.
 //!
+//! - [`geometry`]: shapes and bounds, the ground every other part stands on.
 //! - [`sim`]: the deterministic core (world state, the tick one stage per file, islands and
 //!   sleeping, the plan).
 //! - [`broadphase`], [`narrow`], [`toi`], [`terrain`], [`query`]: the collision machinery the
@@ -13,6 +14,7 @@
 //!   tests and `impact-bench`.
 
 pub mod broadphase;
+pub mod geometry;
 pub mod narrow;
 pub mod offline;
 pub mod query;

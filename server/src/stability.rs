@@ -140,7 +140,7 @@ fn two_spheres(a: (DVec3, DVec3, f64), b: (DVec3, DVec3, f64)) -> World {
     for (p, v, r) in [a, b] {
         let body = crate::sim::world::NewBody {
             class,
-            shape: crate::sim::shape::Shape::Sphere { radius: r },
+            shape: crate::geometry::Shape::Sphere { radius: r },
             pos: p,
             vel: v,
             rot: glam::DQuat::IDENTITY,
@@ -280,10 +280,10 @@ pub fn pile(n: u32, ticks: u32) -> CaseResult {
             }
         }
         if k % 10 == 9 || k + 1 == ticks {
-            let boxes: Vec<crate::sim::shape::Aabb> = b
+            let boxes: Vec<crate::geometry::Aabb> = b
                 .pos
                 .iter()
-                .map(|p| crate::sim::shape::Aabb { min: *p - DVec3::splat(radius), max: *p + DVec3::splat(radius) })
+                .map(|p| crate::geometry::Aabb { min: *p - DVec3::splat(radius), max: *p + DVec3::splat(radius) })
                 .collect();
             grid.pairs(&boxes, &mut pairs);
             for &(i, j) in &pairs {

@@ -315,7 +315,7 @@ pub fn build(s: &Setup) -> TrialSet {
     for (p, v, r) in &bodies {
         let body = crate::sim::world::NewBody {
             class: ball,
-            shape: crate::sim::shape::Shape::Sphere { radius: *r },
+            shape: crate::geometry::Shape::Sphere { radius: *r },
             pos: *p,
             vel: *v,
             rot: DQuat::IDENTITY,

@@ -1,6 +1,6 @@
 //! Every pair: the oracle the other methods are tested against.
 
-use crate::sim::shape::Aabb;
+use crate::geometry::Aabb;
 
 /// Appends every overlapping pair `(i, j)`, `i < j`.
 pub fn pairs(aabbs: &[Aabb], out: &mut Vec<(u32, u32)>) {

@@ -17,7 +17,7 @@
 //! and the cursors (each run is two loads): the cursors walked every entry four times and their
 //! loop exits were the sweep's main cost. Both paths give the same order and the same pairs.
 
-use crate::sim::shape::Aabb;
+use crate::geometry::Aabb;
 use glam::DVec3;
 
 /// Above this many cells per body the cell-start table would cost more than the cursors save

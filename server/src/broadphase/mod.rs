@@ -18,7 +18,7 @@ pub mod grid;
 pub mod sap;
 pub mod sorted;
 
-use crate::sim::shape::Aabb;
+use crate::geometry::Aabb;
 use rapier3d::parry;
 
 /// Which broadphase the plan chose.

@@ -3,7 +3,7 @@
 //! The order is kept between ticks and repaired with an insertion sort, which is near O(n) when
 //! bodies move little per tick.
 
-use crate::sim::shape::Aabb;
+use crate::geometry::Aabb;
 
 /// Sweep-and-prune state carried across ticks.
 #[derive(Debug, Default)]

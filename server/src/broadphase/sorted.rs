@@ -2,7 +2,7 @@
 //! O(log n + nearby): the selective re-simulation's reach set, tested against every body of
 //! every tick it re-simulates.
 
-use crate::sim::shape::Aabb;
+use crate::geometry::Aabb;
 
 /// Boxes sorted by their lower x bound.
 #[derive(Clone, Debug, Default)]

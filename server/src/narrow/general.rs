@@ -6,7 +6,7 @@
 //! from the world origin.
 
 use super::Contact;
-use crate::sim::shape::Shape;
+use crate::geometry::Shape;
 use glam::{DQuat, DVec3};
 use rapier3d::parry;
 use rapier3d::parry::math::{Pose, Vector};

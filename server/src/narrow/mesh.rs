@@ -3,7 +3,7 @@
 //! deepest contact is the pair's contact.
 
 use super::Contact;
-use crate::sim::shape::Shape;
+use crate::geometry::Shape;
 use glam::{DQuat, DVec3};
 use rapier3d::parry;
 

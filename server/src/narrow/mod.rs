@@ -25,7 +25,7 @@ pub mod terrain;
 
 pub use terrain::terrain_contact;
 
-use crate::sim::shape::{Shape, ShapeKind};
+use crate::geometry::{Shape, ShapeKind};
 use glam::{DQuat, DVec3};
 
 /// A contact between `a` (at the origin) and `b`.

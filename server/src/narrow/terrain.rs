@@ -4,7 +4,7 @@
 //! contact pushing it back up.
 
 use super::Contact;
-use crate::sim::shape::Shape;
+use crate::geometry::Shape;
 use crate::terrain::heightfield::HeightField;
 use glam::{DQuat, DVec3};
 

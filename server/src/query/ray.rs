@@ -2,7 +2,7 @@
 //! spheres and ellipsoids, parry's ray casts (in the body's local frame, so far-away bodies stay
 //! accurate) for the other shapes, and a grid walk for the height field.
 
-use crate::sim::shape::{Aabb, Shape};
+use crate::geometry::{Aabb, Shape};
 use crate::sim::world::World;
 use crate::terrain::heightfield::HeightField;
 use glam::{DQuat, DVec3};

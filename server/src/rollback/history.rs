@@ -23,7 +23,7 @@ pub struct Frame {
     pub revision: u32,
     /// The box each body's path stayed within during the tick (by slot of `state`), for
     /// selective re-simulation; empty when not kept.
-    pub paths: Vec<crate::sim::shape::Aabb>,
+    pub paths: Vec<crate::geometry::Aabb>,
     /// The tick hit the per-tick resolution cap (its outcome depends on every body: selective
     /// re-simulation is not allowed through it).
     pub capped: bool,

@@ -5,8 +5,8 @@
 //! the order applied) and the hash it must reach. Rays' rewound hits are not logged: stepping the
 //! tick inside a [`Session`](super::Session) casts them again against the same history.
 
+use crate::geometry::Shape;
 use crate::sim::input::RewoundRay;
-use crate::sim::shape::Shape;
 use crate::sim::world::{ClassId, NewBody, Touch};
 use crate::sim::{SystemAction, TickInput, World};
 use glam::{DQuat, DVec3};

@@ -18,8 +18,8 @@
 
 use super::{Advance, Session};
 use crate::broadphase::sorted::SortedBoxes;
+use crate::geometry::Aabb;
 use crate::rollback::history::Frame;
-use crate::sim::shape::Aabb;
 use crate::sim::{Stepper, TickInput, TickOutput, World};
 use glam::DVec3;
 use impact_protocol::{Action, CollisionEvent, EntityId, RayResult, Tick};

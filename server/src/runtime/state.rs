@@ -498,8 +498,8 @@ fn info(cap: &Capture, e: &Entry) -> BodyInfo {
     }
 }
 
-fn shape_of(s: &crate::sim::shape::Shape) -> BodyShape {
-    use crate::sim::shape::ShapeKind as K;
+fn shape_of(s: &crate::geometry::Shape) -> BodyShape {
+    use crate::geometry::ShapeKind as K;
     match s.kind() {
         K::Sphere => BodyShape::Sphere,
         K::Capsule => BodyShape::Capsule,
@@ -744,7 +744,7 @@ mod tests {
             let id = w
                 .spawn(NewBody {
                     class: crate::sim::world::ClassId(player as u16),
-                    shape: crate::sim::shape::Shape::Sphere { radius: 0.5 },
+                    shape: crate::geometry::Shape::Sphere { radius: 0.5 },
                     pos: DVec3::new(-25.0 + 10.0 * f64::from(k), 5.0, 0.0),
                     vel: DVec3::ZERO,
                     rot: DQuat::IDENTITY,

@@ -5,7 +5,7 @@ pub mod format;
 pub mod random;
 
 use crate::broadphase::StaticIndex;
-use crate::sim::shape::Shape;
+use crate::geometry::Shape;
 use crate::sim::world::{Bodies, ClassId, ClassProps, Classes, NewBody, Rule, SimConfig, StaticWorld, Terrain, World};
 use crate::terrain::heightfield::HeightField;
 use crate::toi::bisect::BisectConfig;

@@ -2,7 +2,7 @@
 //! platform, so a seed always gives the same scene).
 
 use super::format::ScatterDef;
-use crate::sim::shape::Shape;
+use crate::geometry::Shape;
 use glam::DVec3;
 
 /// SplitMix64.

@@ -5,9 +5,9 @@
 //! applies whole or not at all: if any action fails the check at apply time (its entity was
 //! destroyed in a re-simulated past, say), the input is skipped and reported.
 
+use crate::geometry::Shape;
 use crate::query::ray;
 use crate::sim::output::{Skipped, TickOutput};
-use crate::sim::shape::Shape;
 use crate::sim::world::{NewBody, Rule, World};
 use glam::{DQuat, DVec3};
 use impact_protocol::{

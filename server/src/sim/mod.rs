@@ -6,7 +6,6 @@ pub mod input;
 pub mod island;
 pub mod output;
 pub mod plan;
-pub mod shape;
 pub mod step;
 pub mod world;
 

@@ -2,8 +2,8 @@
 //! pays for what the scene does not have. Printed at start; the benchmark compares plans.
 
 use crate::broadphase::BroadphaseKind;
+use crate::geometry::ShapeKind;
 use crate::narrow::Kernel;
-use crate::sim::shape::ShapeKind;
 use crate::sim::world::World;
 use std::collections::BTreeSet;
 use std::fmt;

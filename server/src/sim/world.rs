@@ -2,7 +2,7 @@
 //! every snapshot through an `Arc`), and the class table that decides responses.
 
 use crate::broadphase::StaticIndex;
-use crate::sim::shape::{Aabb, Shape};
+use crate::geometry::{Aabb, Shape};
 use crate::terrain::heightfield::HeightField;
 use crate::toi::bisect::BisectConfig;
 use glam::{DQuat, DVec3};

@@ -4,7 +4,7 @@
 //! The triangle under a point is found from the cell and the side of the diagonal; its plane
 //! N = (P1 - P0) x (P2 - P0) gives the height Qy = (-Nx Qx - Nz Qz + N.P0) / Ny.
 
-use crate::sim::shape::Aabb;
+use crate::geometry::Aabb;
 use glam::DVec3;
 
 /// Why a height field could not be built.

@@ -55,7 +55,7 @@ fn rapier_ccd(set: &trials::TrialSet, repeats: u32) -> Errors {
         let mut colliders = ColliderSet::new();
         for k in 0..w.statics.id.len() {
             let Some(half) = (match &w.statics.shape[k] {
-                impact_server::sim::shape::Shape::Cuboid { half_extents } => Some(*half_extents),
+                impact_server::geometry::Shape::Cuboid { half_extents } => Some(*half_extents),
                 _ => None,
             }) else {
                 continue;

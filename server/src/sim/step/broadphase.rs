@@ -3,7 +3,7 @@
 //! are queried again.
 
 use super::{Cand, Partner, Stepper};
-use crate::sim::shape::Aabb;
+use crate::geometry::Aabb;
 use crate::sim::world::{Rule, World};
 
 impl Stepper {

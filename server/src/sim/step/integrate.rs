@@ -3,7 +3,7 @@
 //! around its start and end poses, padded by the contact slop) are computed.
 
 use super::Stepper;
-use crate::sim::shape::Aabb;
+use crate::geometry::Aabb;
 use crate::sim::world::World;
 use glam::DVec3;
 

@@ -18,10 +18,10 @@ mod sleep;
 
 use crate::broadphase::grid::Grid;
 use crate::broadphase::Broadphase;
+use crate::geometry::{Aabb, Shape};
 use crate::narrow::{self, Contact, Kernel};
 use crate::sim::input::{self, TickInput};
 use crate::sim::plan::Plan;
-use crate::sim::shape::{Aabb, Shape};
 use crate::sim::world::{ClassId, Rule, World};
 use glam::{DQuat, DVec3};
 use impact_protocol::{EntityId, Response};

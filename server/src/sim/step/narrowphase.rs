@@ -3,8 +3,8 @@
 //! and bisection for the rest) and the contact at the end of the step on the current paths.
 
 use super::{Cand, Impact, Partner, Queued, StageStats, Stepper};
+use crate::geometry::Shape;
 use crate::narrow::{self, Contact};
-use crate::sim::shape::Shape;
 use crate::sim::world::{Rule, World};
 use crate::toi::analytic::{swept_sphere, SweptSphere};
 use crate::toi::bisect::first_contact;
