@@ -8,11 +8,9 @@ use super::timing::LeadEstimator;
 use crate::rollback::{RollbackConfig, Session};
 use crate::scene::{avatar_position, AvatarRule, Scene};
 use crate::sim::{Plan, SystemAction};
-use impact_protocol::limits::MAX_CLIENT_MESSAGE_BYTES;
 use impact_protocol::{
-    decode_unchecked, encode, keys, Admitted, ClientId, ClientInput, ClientMessage, CollisionEvent, Encoding, EntityId,
-    EventBatch, EventHistory, InputAck, InputReject, LoggedInput, QueryError, RejectReason, ServerMessage, Tick,
-    Validate, Welcome, WorldId,
+    encode, keys, Admitted, ClientId, ClientInput, CollisionEvent, Encoding, EntityId, EventBatch, InputAck,
+    InputReject, LoggedInput, RejectReason, ServerMessage, Tick, Welcome, WorldId,
 };
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -23,8 +21,14 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use zenoh::Wait;
 
+mod answer;
+mod ingress;
 mod standby;
 mod stats;
+mod summary;
+
+use ingress::declare_primary;
+pub use summary::Summary;
 
 /// How to run the server.
 #[derive(Clone, Debug)]
@@ -88,151 +92,6 @@ impl Default for ServerOptions {
             state: StateOptions::default(),
             metrics: None,
         }
-    }
-}
-
-/// What a run did, printed at shutdown.
-#[derive(Clone, Debug, Default)]
-pub struct Summary {
-    /// Ticks simulated.
-    pub ticks: u64,
-    /// Ticks that missed their deadline.
-    pub overruns: u64,
-    /// Longest tick, ms.
-    pub tick_ms_max: f64,
-    /// Median tick, ms (over the whole run).
-    pub tick_ms_p50: f64,
-    /// Mean tick, ms.
-    pub tick_ms_mean: f64,
-    /// 99th percentile tick, ms.
-    pub tick_ms_p99: f64,
-    /// Inputs accepted.
-    pub inputs_accepted: u64,
-    /// Inputs rejected, by reason.
-    pub inputs_rejected: BTreeMap<String, u64>,
-    /// Inputs that reached the tick thread but were dropped inside the server (never: kept to
-    /// prove it).
-    pub inputs_lost: u64,
-    /// Events published (provisional).
-    pub events: u64,
-    /// Events confirmed.
-    pub confirmed_events: u64,
-    /// Correction batches published.
-    pub corrections: u64,
-    /// Messages the egress queue had to drop.
-    pub egress_dropped: u64,
-    /// Rollbacks and the deepest.
-    pub rollbacks: u64,
-    /// Deepest rollback, ticks.
-    pub rollback_depth_max: u32,
-    /// Median rollback depth, ticks (over the ticks that rolled back).
-    pub rollback_depth_p50: u32,
-    /// 99th percentile rollback depth, ticks.
-    pub rollback_depth_p99: u32,
-    /// Core steps run (ticks and their re-simulations) and the mean time of each stage per
-    /// step, ms, in tick order: what the core costs beside what the runtime around it does.
-    pub core_steps: u64,
-    /// `(stage, mean ms per step)`.
-    pub core_stage_ms: Vec<(&'static str, f64)>,
-    /// Clients seen.
-    pub clients: u64,
-    /// Seconds from the start of the first tick to the end of the last (shutdown excluded).
-    pub run_s: f64,
-    /// As a standby: confirmed ticks followed from the primary's log, and those whose state
-    /// hash differed from the log's (never, unless the two processes run different scenes).
-    pub followed_ticks: u64,
-    /// Followed ticks whose hash differed.
-    pub desyncs: u64,
-    /// As a standby that took over: the tick it took over at and the ticks it re-simulated from
-    /// the last confirmed one (acked inputs re-applied).
-    pub promoted_at: Option<Tick>,
-    /// Ticks re-simulated at the takeover.
-    pub caught_up_ticks: u32,
-    /// Acked inputs re-applied at the takeover.
-    pub reapplied_inputs: u64,
-    /// State streams: frames on client streams.
-    pub state_client_frames: u64,
-    /// Bytes on client streams.
-    pub state_client_bytes: u64,
-    /// Bytes on the world stream.
-    pub state_world_bytes: u64,
-    /// Client-seconds served by the client streams (each frame counts 1/hz s of a listening
-    /// client).
-    pub state_client_s: f64,
-    /// Seconds the state thread spent building, encoding and publishing.
-    pub state_busy_s: f64,
-    /// Seconds the tick thread spent copying the state for it.
-    pub state_capture_s: f64,
-    /// Captures skipped because the state thread was busy.
-    pub state_skipped: u64,
-}
-
-impl std::fmt::Display for Summary {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        writeln!(
-            f,
-            "ticks {} (overruns {}), tick ms p50 {:.3} p99 {:.3} max {:.3}",
-            self.ticks, self.overruns, self.tick_ms_p50, self.tick_ms_p99, self.tick_ms_max
-        )?;
-        writeln!(
-            f,
-            "clients {}, inputs accepted {}, lost inside the server {}",
-            self.clients, self.inputs_accepted, self.inputs_lost
-        )?;
-        let rejected: Vec<String> = self.inputs_rejected.iter().map(|(k, v)| format!("{k} {v}")).collect();
-        writeln!(f, "inputs rejected: {}", if rejected.is_empty() { "none".into() } else { rejected.join(", ") })?;
-        writeln!(
-            f,
-            "events {}, correction batches {}, rollbacks {} ({:.1}/s; depth p50 {} p99 {} max {} ticks)",
-            self.events,
-            self.corrections,
-            self.rollbacks,
-            self.rollbacks as f64 / self.run_s.max(1e-9),
-            self.rollback_depth_p50,
-            self.rollback_depth_p99,
-            self.rollback_depth_max
-        )?;
-        if self.core_steps > 0 {
-            let stages: Vec<String> = self.core_stage_ms.iter().map(|(n, ms)| format!("{n} {ms:.3}")).collect();
-            let total: f64 = self.core_stage_ms.iter().map(|(_, ms)| ms).sum();
-            writeln!(
-                f,
-                "core: {} steps for {} ticks, {:.3} ms per step ({})",
-                self.core_steps,
-                self.ticks,
-                total,
-                stages.join(", ")
-            )?;
-        }
-        if self.followed_ticks > 0 || self.promoted_at.is_some() {
-            writeln!(
-                f,
-                "standby: followed {} confirmed ticks ({} hashes differed)",
-                self.followed_ticks, self.desyncs
-            )?;
-        }
-        if let Some(t) = self.promoted_at {
-            writeln!(
-                f,
-                "took over at tick {} ({} ticks re-simulated from the last confirmed one, {} acked inputs re-applied)",
-                t.0, self.caught_up_ticks, self.reapplied_inputs
-            )?;
-        }
-        if self.state_client_frames > 0 || self.state_world_bytes > 0 {
-            let tick_s = self.tick_ms_mean * self.ticks as f64 / 1e3;
-            writeln!(
-                f,
-                "state streams: {:.0} bytes per client per second ({} client frames), world stream {:.0} bytes/s; \
-                 state thread {:.1} % of a core, copying {:.2} % of tick time, {} captures skipped",
-                self.state_client_bytes as f64 / self.state_client_s.max(1e-9),
-                self.state_client_frames,
-                self.state_world_bytes as f64 / self.run_s.max(1e-9),
-                100.0 * self.state_busy_s / self.run_s.max(1e-9),
-                100.0 * self.state_capture_s / tick_s.max(1e-9),
-                self.state_skipped
-            )?;
-        }
-        write!(f, "egress messages dropped {}", self.egress_dropped)
     }
 }
 
@@ -475,97 +334,6 @@ fn start_world(zs: &Arc<Closer>, scene: Scene, opts: ServerOptions) -> Result<Se
         })
         .map_err(|e| RuntimeError::Thread(e.to_string()))?;
     Ok(ServerHandle { stop, thread: Some(thread), world: world_id })
-}
-
-/// Declares what makes this process the world's server: the input subscriber (decode and
-/// validate in the callback, enqueue, never block), the queryables, and its liveliness token.
-fn declare_primary(zs: &zenoh::Session, world_id: &WorldId, wiring: &Wiring) -> Result<Primary, RuntimeError> {
-    let input_sub = {
-        let tx = wiring.ingress.clone();
-        let etx = wiring.egress.clone();
-        let shared = wiring.shared.clone();
-        let default_enc = wiring.encoding;
-        zs.declare_subscriber(keys::INPUT.any_client(world_id))
-            .callback(move |sample| {
-                let key = sample.key_expr().as_str().to_string();
-                let from_key = keys::INPUT.parse(&key).ok().and_then(|(_, c)| c);
-                let tag = sample.encoding().to_string();
-                let encoding = Encoding::from_zenoh_tag(&tag).unwrap_or(default_enc);
-                let bytes = sample.payload().to_bytes();
-                let refuse = |client: ClientId, header: Option<(u32, Tick)>, reason: RejectReason, detail: String| {
-                    shared.rejected_in_callbacks[reason_index(reason)].fetch_add(1, Ordering::Relaxed);
-                    let key = keys::CLIENT_ACK.key(&world_of(&key), Some(client));
-                    send(&etx, &shared, key, &reject(client, header, reason, detail), encoding);
-                };
-                let Some(client) = from_key else {
-                    return; // not a key of ours: nobody to answer
-                };
-                // Whatever fails from here on is answered with the input's own seq and tick when
-                // the payload can be read that far, so the client can tell which input it was.
-                let header = || {
-                    impact_protocol::input_header(&bytes, encoding, MAX_CLIENT_MESSAGE_BYTES).map(|(_, s, t)| (s, t))
-                };
-                if Encoding::from_zenoh_tag(&tag).is_none() && !tag.is_empty() && tag != "zenoh/bytes" {
-                    return refuse(
-                        client,
-                        None,
-                        RejectReason::Malformed,
-                        format!("unknown encoding {tag:?}: use application/msgpack or application/json"),
-                    );
-                }
-                let input = match decode_unchecked::<ClientMessage>(&bytes, encoding, MAX_CLIENT_MESSAGE_BYTES) {
-                    Err(e) => return refuse(client, header(), e.reject_reason(), e.to_string()),
-                    Ok(ClientMessage::Input(input)) => input,
-                };
-                let here = Some((input.seq, input.tick));
-                if input.client != client {
-                    return refuse(
-                        client,
-                        here,
-                        RejectReason::NotOwner,
-                        format!("input names client {} but was sent on client {client}'s key", input.client),
-                    );
-                }
-                if let Err(e) = input.validate() {
-                    return refuse(client, here, e.reject_reason(), e.to_string());
-                }
-                if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) =
-                    tx.try_send(Ingress { input, encoding })
-                {
-                    refuse(
-                        client,
-                        here,
-                        RejectReason::QueueFull,
-                        "the server's ingress queue is full; resend later".into(),
-                    );
-                }
-            })
-            .wait()
-            .map_err(|e| RuntimeError::Zenoh(format!("declaring the input subscriber: {e}")))?
-    };
-    fn world_of(key: &str) -> WorldId {
-        keys::INPUT.parse(key).map(|(w, _)| w).unwrap_or_else(|_| WorldId::new("unknown").expect("valid name"))
-    }
-
-    // Queries: answered by the tick thread (it owns the history), replied by the egress thread.
-    let mut queryables = Vec::new();
-    for pattern in [keys::QUERY_STATE, keys::QUERY_HISTORY, keys::QUERY_CHECKPOINT] {
-        let tx = wiring.queries.clone();
-        let q = zs
-            .declare_queryable(pattern.key(world_id, None))
-            .callback(move |query| {
-                let _ = tx.try_send(query);
-            })
-            .wait()
-            .map_err(|e| RuntimeError::Zenoh(format!("declaring a queryable: {e}")))?;
-        queryables.push(q);
-    }
-    let token = zs
-        .liveliness()
-        .declare_token(keys::SERVER.key(world_id, None))
-        .wait()
-        .map_err(|e| RuntimeError::Zenoh(format!("declaring the server's liveliness token: {e}")))?;
-    Ok(Primary { _inputs: input_sub, _queryables: queryables, _token: token })
 }
 
 struct TickLoop {
@@ -1148,104 +916,5 @@ impl TickLoop {
             let e = self.clients.get(&client).map_or(self.opts.encoding, |c| c.encoding);
             self.put(self.events_key(client), &make(evs), e);
         }
-    }
-
-    fn answer(&self, q: zenoh::query::Query) {
-        let params = q.parameters().clone();
-        let encoding = params.get("encoding").and_then(|e| e.parse().ok()).unwrap_or(self.opts.encoding);
-        let key = q.key_expr().as_str().to_string();
-        let parse = |name: &str| {
-            params.get(name).map(|v| v.parse::<u32>().map(Tick).map_err(|_| format!("{name}={v} is not a tick")))
-        };
-        let msg = if key.ends_with("/query/checkpoint") {
-            match self.session.checkpoint() {
-                Ok(mut c) => {
-                    // Every client the server remembers, with its avatar.
-                    for (client, s) in &self.clients {
-                        match c.clients.iter_mut().find(|x| x.client == *client) {
-                            Some(x) => x.avatar = s.avatar,
-                            None => c.clients.push(impact_protocol::log::CheckpointClient {
-                                client: *client,
-                                avatar: s.avatar,
-                                highest_seq: None,
-                                seq_bits: vec![0; crate::rollback::replay::WINDOW as usize / 64],
-                            }),
-                        }
-                    }
-                    ServerMessage::Checkpoint(c)
-                }
-                Err(e) => ServerMessage::QueryError(QueryError { detail: e }),
-            }
-        } else if key.ends_with("/query/state") {
-            match parse("tick").transpose() {
-                Err(e) => ServerMessage::QueryError(QueryError { detail: e }),
-                Ok(t) => {
-                    let now = self.session.now();
-                    let world = match t {
-                        None => Some(self.session.world()),
-                        Some(t) if t == now => Some(self.session.world()),
-                        Some(t) => self.session.frame(t).map(|f| &f.state),
-                    };
-                    match world {
-                        Some(w) => ServerMessage::Snapshot(snapshot(w)),
-                        None => ServerMessage::QueryError(QueryError {
-                            detail: format!(
-                                "tick {} is outside the history (oldest {}, now {now})",
-                                t.map_or(0, |t| t.0),
-                                self.session.oldest_accepted()
-                            ),
-                        }),
-                    }
-                }
-            }
-        } else {
-            match (parse("from").transpose(), parse("to").transpose()) {
-                (Ok(Some(from)), Ok(Some(to))) if from < self.session.oldest_accepted() || to >= self.session.now() => {
-                    ServerMessage::QueryError(QueryError {
-                        detail: format!(
-                            "ticks {}..={} are not all in the history (held: {}..{}; older ticks were confirmed)",
-                            from.0,
-                            to.0,
-                            self.session.oldest_accepted(),
-                            self.session.now()
-                        ),
-                    })
-                }
-                (Ok(Some(from)), Ok(Some(to))) if from <= to && to.0 - from.0 <= 10_000 => {
-                    let events = (from.0..=to.0)
-                        .filter_map(|t| self.session.frame(Tick(t)))
-                        .flat_map(|f| f.events.iter().cloned())
-                        .collect();
-                    ServerMessage::History(EventHistory { from, to, events })
-                }
-                (Err(e), _) | (_, Err(e)) => ServerMessage::QueryError(QueryError { detail: e }),
-                _ => ServerMessage::QueryError(QueryError {
-                    detail: "history needs from=T1;to=T2 with T1 <= T2, at most 10000 ticks".into(),
-                }),
-            }
-        };
-        if let Ok(bytes) = encode(&msg, encoding) {
-            if self.egress.try_send(Out::Reply { query: q, bytes, encoding }).is_err() {
-                self.shared.egress_dropped.fetch_add(1, Ordering::Relaxed);
-            }
-        }
-    }
-}
-
-/// The world as a snapshot message.
-pub fn snapshot(w: &crate::sim::World) -> impact_protocol::WorldSnapshot {
-    let b = &w.bodies;
-    impact_protocol::WorldSnapshot {
-        tick: w.tick,
-        state_hash: w.state_hash(),
-        bodies: (0..b.len())
-            .map(|i| impact_protocol::BodyState {
-                entity: b.id[i],
-                class: w.config.classes.props[b.class[i].0 as usize].name.clone(),
-                owner: b.owner[i],
-                position: b.pos[i].to_array(),
-                velocity: b.vel[i].to_array(),
-            })
-            .collect(),
     }
 }

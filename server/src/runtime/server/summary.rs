@@ -1,0 +1,149 @@
+//! What a run did: the summary a world prints when it stops.
+
+use impact_protocol::Tick;
+use std::collections::BTreeMap;
+
+/// What a run did, printed at shutdown.
+#[derive(Clone, Debug, Default)]
+pub struct Summary {
+    /// Ticks simulated.
+    pub ticks: u64,
+    /// Ticks that missed their deadline.
+    pub overruns: u64,
+    /// Longest tick, ms.
+    pub tick_ms_max: f64,
+    /// Median tick, ms (over the whole run).
+    pub tick_ms_p50: f64,
+    /// Mean tick, ms.
+    pub tick_ms_mean: f64,
+    /// 99th percentile tick, ms.
+    pub tick_ms_p99: f64,
+    /// Inputs accepted.
+    pub inputs_accepted: u64,
+    /// Inputs rejected, by reason.
+    pub inputs_rejected: BTreeMap<String, u64>,
+    /// Inputs that reached the tick thread but were dropped inside the server (never: kept to
+    /// prove it).
+    pub inputs_lost: u64,
+    /// Events published (provisional).
+    pub events: u64,
+    /// Events confirmed.
+    pub confirmed_events: u64,
+    /// Correction batches published.
+    pub corrections: u64,
+    /// Messages the egress queue had to drop.
+    pub egress_dropped: u64,
+    /// Rollbacks and the deepest.
+    pub rollbacks: u64,
+    /// Deepest rollback, ticks.
+    pub rollback_depth_max: u32,
+    /// Median rollback depth, ticks (over the ticks that rolled back).
+    pub rollback_depth_p50: u32,
+    /// 99th percentile rollback depth, ticks.
+    pub rollback_depth_p99: u32,
+    /// Core steps run (ticks and their re-simulations) and the mean time of each stage per
+    /// step, ms, in tick order: what the core costs beside what the runtime around it does.
+    pub core_steps: u64,
+    /// `(stage, mean ms per step)`.
+    pub core_stage_ms: Vec<(&'static str, f64)>,
+    /// Clients seen.
+    pub clients: u64,
+    /// Seconds from the start of the first tick to the end of the last (shutdown excluded).
+    pub run_s: f64,
+    /// As a standby: confirmed ticks followed from the primary's log, and those whose state
+    /// hash differed from the log's (never, unless the two processes run different scenes).
+    pub followed_ticks: u64,
+    /// Followed ticks whose hash differed.
+    pub desyncs: u64,
+    /// As a standby that took over: the tick it took over at and the ticks it re-simulated from
+    /// the last confirmed one (acked inputs re-applied).
+    pub promoted_at: Option<Tick>,
+    /// Ticks re-simulated at the takeover.
+    pub caught_up_ticks: u32,
+    /// Acked inputs re-applied at the takeover.
+    pub reapplied_inputs: u64,
+    /// State streams: frames on client streams.
+    pub state_client_frames: u64,
+    /// Bytes on client streams.
+    pub state_client_bytes: u64,
+    /// Bytes on the world stream.
+    pub state_world_bytes: u64,
+    /// Client-seconds served by the client streams (each frame counts 1/hz s of a listening
+    /// client).
+    pub state_client_s: f64,
+    /// Seconds the state thread spent building, encoding and publishing.
+    pub state_busy_s: f64,
+    /// Seconds the tick thread spent copying the state for it.
+    pub state_capture_s: f64,
+    /// Captures skipped because the state thread was busy.
+    pub state_skipped: u64,
+}
+
+impl std::fmt::Display for Summary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "ticks {} (overruns {}), tick ms p50 {:.3} p99 {:.3} max {:.3}",
+            self.ticks, self.overruns, self.tick_ms_p50, self.tick_ms_p99, self.tick_ms_max
+        )?;
+        writeln!(
+            f,
+            "clients {}, inputs accepted {}, lost inside the server {}",
+            self.clients, self.inputs_accepted, self.inputs_lost
+        )?;
+        let rejected: Vec<String> = self.inputs_rejected.iter().map(|(k, v)| format!("{k} {v}")).collect();
+        writeln!(f, "inputs rejected: {}", if rejected.is_empty() { "none".into() } else { rejected.join(", ") })?;
+        writeln!(
+            f,
+            "events {}, correction batches {}, rollbacks {} ({:.1}/s; depth p50 {} p99 {} max {} ticks)",
+            self.events,
+            self.corrections,
+            self.rollbacks,
+            self.rollbacks as f64 / self.run_s.max(1e-9),
+            self.rollback_depth_p50,
+            self.rollback_depth_p99,
+            self.rollback_depth_max
+        )?;
+        if self.core_steps > 0 {
+            let stages: Vec<String> = self.core_stage_ms.iter().map(|(n, ms)| format!("{n} {ms:.3}")).collect();
+            let total: f64 = self.core_stage_ms.iter().map(|(_, ms)| ms).sum();
+            writeln!(
+                f,
+                "core: {} steps for {} ticks, {:.3} ms per step ({})",
+                self.core_steps,
+                self.ticks,
+                total,
+                stages.join(", ")
+            )?;
+        }
+        if self.followed_ticks > 0 || self.promoted_at.is_some() {
+            writeln!(
+                f,
+                "standby: followed {} confirmed ticks ({} hashes differed)",
+                self.followed_ticks, self.desyncs
+            )?;
+        }
+        if let Some(t) = self.promoted_at {
+            writeln!(
+                f,
+                "took over at tick {} ({} ticks re-simulated from the last confirmed one, {} acked inputs re-applied)",
+                t.0, self.caught_up_ticks, self.reapplied_inputs
+            )?;
+        }
+        if self.state_client_frames > 0 || self.state_world_bytes > 0 {
+            let tick_s = self.tick_ms_mean * self.ticks as f64 / 1e3;
+            writeln!(
+                f,
+                "state streams: {:.0} bytes per client per second ({} client frames), world stream {:.0} bytes/s; \
+                 state thread {:.1} % of a core, copying {:.2} % of tick time, {} captures skipped",
+                self.state_client_bytes as f64 / self.state_client_s.max(1e-9),
+                self.state_client_frames,
+                self.state_world_bytes as f64 / self.run_s.max(1e-9),
+                100.0 * self.state_busy_s / self.run_s.max(1e-9),
+                100.0 * self.state_capture_s / tick_s.max(1e-9),
+                self.state_skipped
+            )?;
+        }
+        write!(f, "egress messages dropped {}", self.egress_dropped)
+    }
+}
