@@ -2,8 +2,8 @@
 //!
 //! - [`geometry`]: shapes and bounds, the ground every other part stands on.
 //! - [`sim`]: the deterministic core (world state, the tick one stage per file, islands and
-//!   sleeping, the plan).
-//! - [`broadphase`], [`narrow`], [`toi`], [`terrain`], [`query`]: the collision machinery the
+//!   sleeping, the plan, ray casts against a world).
+//! - [`broadphase`], [`narrow`], [`toi`], [`terrain`]: the collision machinery the
 //!   tick is built from, one concept per module.
 //! - [`scene`]: the scene file format and loader.
 //! - [`offline`]: running a scene with no network (`impact-server --offline`).
@@ -17,7 +17,6 @@ pub mod broadphase;
 pub mod geometry;
 pub mod narrow;
 pub mod offline;
-pub mod query;
 pub mod recording;
 pub mod rollback;
 #[cfg(feature = "runtime")]

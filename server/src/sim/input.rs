@@ -6,7 +6,7 @@
 //! destroyed in a re-simulated past, say), the input is skipped and reported.
 
 use crate::geometry::Shape;
-use crate::query::ray;
+use crate::sim::ray;
 use crate::sim::output::{Skipped, TickOutput};
 use crate::sim::world::{NewBody, Rule, World};
 use glam::{DQuat, DVec3};

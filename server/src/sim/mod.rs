@@ -6,6 +6,7 @@ pub mod input;
 pub mod island;
 pub mod output;
 pub mod plan;
+pub mod ray;
 pub mod step;
 pub mod world;
 
