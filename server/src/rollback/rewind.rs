@@ -8,8 +8,8 @@
 //! input's tick is simulated (and again each time that tick is re-simulated, so a rollback that
 //! changed the past world changes the hit too) and hands the hits to the core inside the input.
 
-use crate::sim::ray::{self, Ray};
 use crate::sim::input::{RewoundRay, TickInput};
+use crate::sim::ray::{self, Ray};
 use crate::sim::World;
 use glam::DVec3;
 use impact_protocol::{Action, Tick};

@@ -6,8 +6,8 @@
 //! destroyed in a re-simulated past, say), the input is skipped and reported.
 
 use crate::geometry::Shape;
-use crate::sim::ray;
 use crate::sim::output::{Skipped, TickOutput};
+use crate::sim::ray;
 use crate::sim::world::{NewBody, Rule, World};
 use glam::{DQuat, DVec3};
 use impact_protocol::{

@@ -1,0 +1,617 @@
+//! The tick loop: one world's thread. Each tick it takes presence changes and inputs off the
+//! queues, advances the rollback session, and publishes acks, events, corrections, the input log,
+//! stats and the state capture; it also answers queries between ticks.
+
+use super::super::egress::Out;
+use super::super::metrics::WorldMetrics;
+use super::super::state::{Capture, StateCounters};
+use super::super::timing::LeadEstimator;
+use super::{
+    declare_primary, reject, send, ClientState, Control, Ingress, Primary, ServerOptions, Shared, Summary, Wiring,
+};
+use crate::rollback::{RollbackConfig, Session};
+use crate::scene::{avatar_position, AvatarRule, Scene};
+use crate::sim::{Plan, SystemAction};
+use impact_protocol::{
+    encode, keys, Admitted, ClientId, CollisionEvent, Encoding, EntityId, EventBatch, InputAck, InputReject,
+    LoggedInput, RejectReason, ServerMessage, Tick, Welcome, WorldId,
+};
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, SyncSender};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+pub(super) struct TickLoop {
+    pub(super) session: Session,
+    pub(super) opts: ServerOptions,
+    pub(super) world: WorldId,
+    pub(super) avatar: Option<AvatarRule>,
+    pub(super) egress: SyncSender<Out>,
+    pub(super) shared: Arc<Shared>,
+    pub(super) clients: BTreeMap<ClientId, ClientState>,
+    pub(super) summary: Summary,
+    /// This second's tick durations, ms (the stats message carries them).
+    pub(super) tick_times: Vec<f64>,
+    /// Every tick's duration, microseconds, for the run's percentiles.
+    pub(super) all_tick_times: hdrhistogram::Histogram<u64>,
+    /// Core stage times and steps at the last stats message, for the period's means.
+    pub(super) last_stages: (u64, Vec<Duration>),
+    /// Where state captures go (`None`: no state streams).
+    pub(super) state_tx: Option<SyncSender<Capture>>,
+    pub(super) state_counters: Arc<StateCounters>,
+    /// The state frame the last capture was for.
+    pub(super) state_frame: Option<u64>,
+    pub(super) metrics: Option<WorldMetrics>,
+    pub(super) period_events: u64,
+    pub(super) period_rollbacks: u32,
+    pub(super) period_depth: u32,
+    pub(super) period_queue_max: u32,
+    /// Rollbacks by depth (index: ticks re-simulated; bounded by the window).
+    pub(super) depths: Vec<u64>,
+    /// The declarations of the world's server (`None` while a standby follows).
+    pub(super) primary: Option<Primary>,
+    /// The `--record` file.
+    pub(super) record: Option<crate::recording::Recorder>,
+    /// Inputs acked and server actions queued in this tick: the `log/admitted` message.
+    pub(super) admitted: Admitted,
+    /// This tick's acks, held until `admitted` is out.
+    pub(super) acks: Vec<(String, ServerMessage, Encoding)>,
+    /// The last tick an earlier primary confirmed: a standby that took over never publishes a
+    /// tick up to it as confirmed again.
+    pub(super) confirmed_upto: Option<Tick>,
+}
+
+impl TickLoop {
+    pub(super) fn new(
+        scene: Scene,
+        opts: ServerOptions,
+        world: WorldId,
+        egress: SyncSender<Out>,
+        shared: Arc<Shared>,
+    ) -> TickLoop {
+        let w = scene.world;
+        let mut rb = opts.rollback.clone().unwrap_or_else(|| RollbackConfig::for_world(&w));
+        rb.window_ticks = rb.window_ticks.max(1);
+        let plan = Plan::for_world(&w);
+        let session = Session::new(w, plan, rb);
+        let metrics = opts.metrics.as_ref().map(|m| m.world(world.as_str()));
+        TickLoop {
+            session,
+            opts,
+            world,
+            avatar: scene.avatar,
+            egress,
+            shared,
+            clients: BTreeMap::new(),
+            summary: Summary::default(),
+            tick_times: Vec::with_capacity(128),
+            // 1 us to 1 h at three significant figures: the bounds cannot be out of range.
+            all_tick_times: hdrhistogram::Histogram::new_with_bounds(1, 3_600_000_000, 3).expect("valid bounds"),
+            last_stages: (0, Vec::new()),
+            state_tx: None,
+            state_counters: Arc::new(StateCounters::default()),
+            state_frame: None,
+            metrics,
+            period_events: 0,
+            period_rollbacks: 0,
+            period_depth: 0,
+            depths: Vec::new(),
+            period_queue_max: 0,
+            primary: None,
+            record: None,
+            admitted: Admitted { tick: Tick(0), system: Vec::new(), inputs: Vec::new() },
+            acks: Vec::new(),
+            confirmed_upto: None,
+        }
+    }
+
+    pub(super) fn put(&self, key: String, msg: &ServerMessage, encoding: Encoding) {
+        send(&self.egress, &self.shared, key, msg, encoding);
+    }
+
+    /// Publishes on the log streams: in order with everything else, but never dropped by
+    /// congestion (a standby that misses an entry must start again from a checkpoint).
+    fn put_log(&self, key: String, msg: &ServerMessage) {
+        let enc = self.opts.encoding;
+        match encode(msg, enc) {
+            Ok(bytes) => {
+                if self.egress.try_send(Out::Log { key, bytes, encoding: enc }).is_err() {
+                    self.shared.egress_dropped.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+            Err(_) => {
+                self.shared.egress_failed.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    }
+
+    /// A client's `client/{id}/ack` key (formatted once, when the client was first seen).
+    fn ack_key(&self, client: ClientId) -> String {
+        self.clients.get(&client).map_or_else(|| keys::CLIENT_ACK.key(&self.world, Some(client)), |c| c.ack_key.clone())
+    }
+
+    /// A client's `client/{id}/events` key, likewise.
+    fn events_key(&self, client: ClientId) -> String {
+        self.clients
+            .get(&client)
+            .map_or_else(|| keys::CLIENT_EVENTS.key(&self.world, Some(client)), |c| c.events_key.clone())
+    }
+
+    /// The state of a client first seen now.
+    pub(super) fn new_client(
+        &self,
+        client: ClientId,
+        present: bool,
+        leave_at: Option<u32>,
+        encoding: Encoding,
+    ) -> ClientState {
+        ClientState {
+            avatar: None,
+            present,
+            leave_at,
+            tokens: f64::from(self.opts.inputs_per_client_per_s),
+            encoding,
+            timing: LeadEstimator::default(),
+            ack_key: keys::CLIENT_ACK.key(&self.world, Some(client)),
+            events_key: keys::CLIENT_EVENTS.key(&self.world, Some(client)),
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn run(
+        &mut self,
+        stop: &AtomicBool,
+        zs: &zenoh::Session,
+        wiring: &Wiring,
+        follower: Option<super::standby::Follower>,
+        ingress: Receiver<Ingress>,
+        control: Receiver<Control>,
+        queries: Receiver<zenoh::query::Query>,
+    ) -> Summary {
+        if let Some(f) = follower {
+            if !self.follow(f, stop, zs, &control) {
+                return self.finish();
+            }
+            match declare_primary(zs, &self.world, wiring) {
+                Ok(p) => self.primary = Some(p),
+                Err(e) => {
+                    eprintln!("impact-server: world {}: taking over failed: {e}", self.world);
+                    return self.finish();
+                }
+            }
+            self.reanchor();
+        }
+        let hz = self.session.world().config.tick_hz;
+        let dt = Duration::from_secs_f64(1.0 / f64::from(hz));
+        let started = Instant::now();
+        let mut next = started;
+        let mut last_stats = Instant::now();
+        loop {
+            if stop.load(Ordering::SeqCst) || self.opts.max_ticks.is_some_and(|m| self.summary.ticks >= m) {
+                break;
+            }
+            // Deadline schedule. Behind by more than 4 ticks: drop the backlog and start a new
+            // schedule from now (catching up by running ticks back to back would only make the
+            // world run fast for a while); each dropped deadline counts as an overrun.
+            let now = Instant::now();
+            if now < next {
+                std::thread::sleep(next - now);
+            } else if now - next > dt * 4 {
+                let missed = ((now - next).as_secs_f64() / dt.as_secs_f64()) as u64;
+                self.summary.overruns += missed;
+                next = now;
+            }
+            next += dt;
+            let t0 = Instant::now();
+            self.tick(&ingress, &control, &queries);
+            let ms = t0.elapsed().as_secs_f64() * 1e3;
+            if t0.elapsed() > dt {
+                self.summary.overruns += 1;
+            }
+            self.tick_times.push(ms);
+            let _ = self.all_tick_times.record((ms * 1e3).round().max(1.0) as u64);
+            if let Some(m) = &self.metrics {
+                m.tick(ms / 1e3);
+            }
+            self.summary.tick_ms_max = self.summary.tick_ms_max.max(ms);
+            if last_stats.elapsed() >= Duration::from_secs(1) {
+                last_stats = Instant::now();
+                self.publish_stats();
+            }
+        }
+        self.summary.run_s = started.elapsed().as_secs_f64();
+        // Shutdown: everything still in the window is final now.
+        for (batch, log) in self.session.finish() {
+            if self.confirmed_upto.is_some_and(|c| batch.tick <= c) {
+                continue;
+            }
+            self.put(keys::CONFIRMED.key(&self.world, None), &ServerMessage::Confirmed(batch), self.opts.encoding);
+            let entry = log.to_wire();
+            if let Some(r) = self.record.as_mut() {
+                r.write(&entry);
+            }
+            self.put_log(keys::LOG.key(&self.world, None), &ServerMessage::Log(entry));
+        }
+        self.finish()
+    }
+
+    /// The run's summary (after the last tick).
+    fn finish(&mut self) -> Summary {
+        if let Some(r) = self.record.as_mut() {
+            if let Err(e) = r.flush() {
+                eprintln!("impact-server: world {}: {e}", self.world);
+            }
+        }
+        let h = &self.all_tick_times;
+        self.summary.tick_ms_p50 = h.value_at_quantile(0.5) as f64 / 1e3;
+        self.summary.tick_ms_p99 = h.value_at_quantile(0.99) as f64 / 1e3;
+        self.summary.tick_ms_mean = h.mean() / 1e3;
+        self.summary.egress_dropped = self.shared.egress_dropped.load(Ordering::Relaxed);
+        for (k, r) in RejectReason::ALL.iter().enumerate() {
+            let n = self.shared.rejected_in_callbacks[k].load(Ordering::Relaxed);
+            if n > 0 {
+                *self.summary.inputs_rejected.entry(r.name().to_string()).or_insert(0) += n;
+            }
+        }
+        self.summary.rollbacks = self.session.stats.rollbacks;
+        self.summary.rollback_depth_max = self.session.stats.depth_max;
+        let core = &self.session.stepper().stats;
+        self.summary.core_steps = core.ticks;
+        let steps = core.ticks.max(1) as f64;
+        self.summary.core_stage_ms = core.stages().iter().map(|(n, d)| (*n, d.as_secs_f64() * 1e3 / steps)).collect();
+        // Depth percentiles over the ticks that rolled back.
+        let total: u64 = self.depths.iter().sum();
+        let at = |q: f64| {
+            let rank = ((q * total as f64).ceil() as u64).max(1);
+            let mut seen = 0;
+            self.depths.iter().position(|c| {
+                seen += c;
+                seen >= rank
+            })
+        };
+        if total > 0 {
+            self.summary.rollback_depth_p50 = at(0.5).unwrap_or(0) as u32;
+            self.summary.rollback_depth_p99 = at(0.99).unwrap_or(0) as u32;
+        }
+        self.summary.clone()
+    }
+
+    fn count_reject(&mut self, reason: RejectReason) {
+        *self.summary.inputs_rejected.entry(reason.name().to_string()).or_insert(0) += 1;
+    }
+
+    fn tick(
+        &mut self,
+        ingress: &Receiver<Ingress>,
+        control: &Receiver<Control>,
+        queries: &Receiver<zenoh::query::Query>,
+    ) {
+        self.presence(control);
+        self.ingest(ingress);
+        self.publish_admitted();
+        self.step();
+        self.capture_state();
+        // Queries, answered from the history.
+        while let Ok(q) = queries.try_recv() {
+            self.answer(q);
+        }
+    }
+
+    /// Joins and leaves; avatars whose client's grace ended are removed. A standby only keeps
+    /// track (its primary's log carries the spawns and removals).
+    pub(super) fn presence(&mut self, control: &Receiver<Control>) {
+        let now = self.session.now();
+        while let Ok(c) = control.try_recv() {
+            match c {
+                Control::Join(client) => self.join(client),
+                Control::Leave(client) => {
+                    if let Some(s) = self.clients.get_mut(&client) {
+                        s.present = false;
+                        s.leave_at = Some(now.0 + self.opts.grace_ticks);
+                    }
+                }
+            }
+        }
+        let leaving: Vec<ClientId> = self
+            .clients
+            .iter()
+            .filter(|(_, s)| !s.present && s.leave_at.is_some_and(|t| t <= now.0))
+            .map(|(c, _)| *c)
+            .collect();
+        if self.primary.is_none() {
+            return;
+        }
+        for c in leaving {
+            self.session.forget_client(c);
+            if let Some(s) = self.clients.remove(&c) {
+                if let Some(entity) = s.avatar {
+                    self.submit_system(SystemAction::Remove { entity });
+                }
+            }
+        }
+    }
+
+    /// Queues a server action for the present tick, and for the admitted log.
+    fn submit_system(&mut self, a: SystemAction) {
+        self.admitted.system.push(crate::rollback::log::logged_system(&a));
+        self.session.submit_system(a);
+    }
+
+    /// Inputs: every one queued now (the queue is bounded, so this is too).
+    fn ingest(&mut self, ingress: &Receiver<Ingress>) {
+        let now = self.session.now();
+        let per_tick = f64::from(self.opts.inputs_per_client_per_s) / f64::from(self.session.world().config.tick_hz);
+        for c in self.clients.values_mut() {
+            c.tokens = (c.tokens + per_tick).min(f64::from(self.opts.inputs_per_client_per_s));
+        }
+        let mut queued = 0u32;
+        while let Ok(Ingress { input, encoding }) = ingress.try_recv() {
+            queued += 1;
+            let (client, seq, tick) = (input.client, input.seq, input.tick);
+            if !self.clients.contains_key(&client) {
+                if self.clients.len() >= self.opts.max_clients {
+                    // Every client costs a little state until its grace ends: an input from yet
+                    // another id (never present) must not grow it without bound.
+                    self.count_reject(RejectReason::QueueFull);
+                    let detail = format!("the server already serves its maximum of {} clients", self.opts.max_clients);
+                    let msg = reject(client, Some((seq, tick)), RejectReason::QueueFull, detail);
+                    self.put(self.ack_key(client), &msg, encoding);
+                    continue;
+                }
+                let state = self.new_client(client, false, Some(now.0 + self.opts.grace_ticks), encoding);
+                self.clients.insert(client, state);
+            }
+            let state = self.clients.get_mut(&client).expect("inserted above");
+            let ack_key = state.ack_key.clone();
+            state.encoding = encoding;
+            if state.tokens < 1.0 {
+                self.count_reject(RejectReason::RateLimited);
+                let msg = reject(
+                    client,
+                    Some((seq, tick)),
+                    RejectReason::RateLimited,
+                    format!("more than {} inputs per second", self.opts.inputs_per_client_per_s),
+                );
+                self.put(ack_key, &msg, encoding);
+                continue;
+            }
+            state.tokens -= 1.0;
+            let view = input.view_tick.unwrap_or(tick);
+            let logged = LoggedInput {
+                client,
+                seq,
+                tick,
+                view_tick: input.view_tick,
+                actions: input.actions.clone(),
+                rewound: Vec::new(),
+            };
+            match self.session.submit(input) {
+                Ok(applied) => {
+                    self.summary.inputs_accepted += 1;
+                    self.admitted.inputs.push(LoggedInput { tick: applied, ..logged });
+                    // The most a client can lead by and still be accepted: its round trip (the
+                    // smallest lead that is on time) plus the ticks the server accepts ahead.
+                    let max_lead = now.0.saturating_sub(view.0).saturating_add(self.session.config().lead_ticks);
+                    let lead_ticks = state.timing.observe(now, view, max_lead);
+                    let margin_ticks = (i64::from(applied.0) - i64::from(now.0)).clamp(-1 << 30, 1 << 30) as i32;
+                    let ack = ServerMessage::Ack(InputAck {
+                        client,
+                        seq,
+                        tick,
+                        applied_tick: applied,
+                        server_tick: now,
+                        margin_ticks,
+                        lead_ticks,
+                    });
+                    // Sent after the admitted log (see `publish_admitted`).
+                    self.acks.push((ack_key, ack, encoding));
+                }
+                Err(r) => {
+                    self.count_reject(r.reason);
+                    let msg = ServerMessage::Reject(InputReject {
+                        client,
+                        seq: Some(seq),
+                        tick: Some(tick),
+                        reason: r.reason,
+                        detail: r.detail,
+                        oldest_tick: r.oldest_tick,
+                        newest_tick: r.newest_tick,
+                    });
+                    self.put(ack_key, &msg, encoding);
+                }
+            }
+        }
+        self.period_queue_max = self.period_queue_max.max(queued);
+    }
+
+    /// Publishes what this tick admitted (a standby re-applies it if this process dies before
+    /// the tick is confirmed), then the acks: a client never holds an ack for an input a standby
+    /// could not know of. Nothing admitted: nothing sent.
+    fn publish_admitted(&mut self) {
+        let now = self.session.now();
+        if !self.admitted.inputs.is_empty() || !self.admitted.system.is_empty() {
+            self.admitted.tick = now;
+            let msg = ServerMessage::Admitted(std::mem::replace(
+                &mut self.admitted,
+                Admitted { tick: now, system: Vec::new(), inputs: Vec::new() },
+            ));
+            self.put_log(keys::LOG_ADMITTED.key(&self.world, None), &msg);
+        }
+        for (key, ack, encoding) in std::mem::take(&mut self.acks) {
+            self.put(key, &ack, encoding);
+        }
+    }
+
+    /// Steps the present tick and publishes what it produced: events, corrections, the tick
+    /// that left the window (confirmed events and its log entry), ray results, skips, welcomes.
+    fn step(&mut self) {
+        let adv = self.session.advance();
+        self.publish(adv);
+    }
+
+    /// Publishes what one advance produced.
+    pub(super) fn publish(&mut self, mut adv: crate::rollback::Advance) {
+        self.summary.ticks += 1;
+        if adv.rollback_depth > 0 {
+            if let Some(m) = &self.metrics {
+                m.rollback(adv.rollback_depth);
+            }
+            self.period_rollbacks += 1;
+            self.period_depth = self.period_depth.max(adv.rollback_depth);
+            let d = adv.rollback_depth as usize;
+            if self.depths.len() <= d {
+                self.depths.resize(d + 1, 0);
+            }
+            self.depths[d] += 1;
+        }
+        let enc = self.opts.encoding;
+        if !adv.events.is_empty() {
+            self.summary.events += adv.events.len() as u64;
+            self.period_events += adv.events.len() as u64;
+            let batch = EventBatch { tick: adv.tick, revision: 0, events: adv.events.clone() };
+            self.per_client(&batch.events, adv.tick, |events| {
+                ServerMessage::Events(EventBatch { tick: batch.tick, revision: 0, events })
+            });
+            self.put(keys::EVENTS.key(&self.world, None), &ServerMessage::Events(batch), enc);
+        }
+        for c in &adv.corrections {
+            self.summary.corrections += 1;
+            let all: Vec<CollisionEvent> = c.retracted.iter().chain(&c.amended).chain(&c.added).cloned().collect();
+            let cc = c.clone();
+            self.per_client(&all, c.tick, move |events| {
+                let keep = |v: &[CollisionEvent]| {
+                    v.iter().filter(|e| events.iter().any(|x| x.key() == e.key())).cloned().collect()
+                };
+                ServerMessage::Corrections(impact_protocol::CorrectionBatch {
+                    tick: cc.tick,
+                    revision: cc.revision,
+                    retracted: keep(&cc.retracted),
+                    amended: keep(&cc.amended),
+                    added: keep(&cc.added),
+                })
+            });
+            self.put(keys::CORRECTIONS.key(&self.world, None), &ServerMessage::Corrections(c.clone()), enc);
+        }
+        // A standby that took over re-simulates ticks its primary already confirmed: they were
+        // published then, and are not again.
+        let fresh = |t: Tick| self.confirmed_upto.is_none_or(|c| t > c);
+        if let Some(log) = adv.log.take().filter(|l| fresh(l.tick)) {
+            let entry = log.to_wire();
+            if let Some(r) = self.record.as_mut() {
+                r.write(&entry);
+            }
+            self.put_log(keys::LOG.key(&self.world, None), &ServerMessage::Log(entry));
+        }
+        if let Some(c) = adv.confirmed.as_ref().filter(|c| fresh(c.tick)) {
+            self.summary.confirmed_events += c.events.len() as u64;
+            if !c.events.is_empty() {
+                let cc = c.clone();
+                self.per_client(&c.events, c.tick, move |events| {
+                    ServerMessage::Confirmed(EventBatch { tick: cc.tick, revision: cc.revision, events })
+                });
+            }
+            self.put(keys::CONFIRMED.key(&self.world, None), &ServerMessage::Confirmed(c.clone()), enc);
+        }
+        for r in &adv.rays {
+            let e = self.clients.get(&r.client).map_or(enc, |c| c.encoding);
+            self.put(self.ack_key(r.client), &ServerMessage::RayResult(r.clone()), e);
+        }
+        for s in &adv.skipped {
+            self.count_reject(s.reason);
+            let e = self.clients.get(&s.client).map_or(enc, |c| c.encoding);
+            self.put(self.ack_key(s.client), &reject(s.client, Some((s.seq, s.tick)), s.reason, s.detail.clone()), e);
+        }
+        for (client, entity) in &adv.spawned {
+            if let Some(c) = self.clients.get_mut(client) {
+                c.avatar = Some(*entity);
+            }
+            if self.primary.is_some() {
+                self.welcome(*client, Some(*entity));
+            }
+        }
+    }
+
+    pub(super) fn welcome(&self, client: ClientId, avatar: Option<EntityId>) {
+        let cfg = &self.session.world().config;
+        let msg = ServerMessage::Welcome(Welcome {
+            client,
+            avatar,
+            tick: self.session.now(),
+            tick_hz: cfg.tick_hz,
+            window_ticks: cfg.window_ticks,
+            input_lead_ticks: self.session.config().lead_ticks,
+            max_rewind_ticks: cfg.max_rewind_ticks.min(self.session.config().window_ticks),
+            next_seq: self.session.next_seq(client),
+        });
+        let e = self.clients.get(&client).map_or(self.opts.encoding, |c| c.encoding);
+        self.put(self.ack_key(client), &msg, e);
+    }
+
+    pub(super) fn join(&mut self, client: ClientId) {
+        let now = self.session.now();
+        if self.primary.is_none() {
+            // A standby: remember the client is there; its primary spawns the avatar.
+            let state = self.new_client(client, true, None, self.opts.encoding);
+            let s = self.clients.entry(client).or_insert(state);
+            s.present = true;
+            s.leave_at = None;
+            return;
+        }
+        if let Some(s) = self.clients.get_mut(&client) {
+            s.present = true;
+            s.leave_at = None;
+            if s.avatar.is_some() {
+                let a = s.avatar;
+                self.welcome(client, a);
+                return;
+            }
+        }
+        if self.clients.len() >= self.opts.max_clients && !self.clients.contains_key(&client) {
+            return;
+        }
+        self.summary.clients += 1;
+        let state = self.new_client(client, true, None, self.opts.encoding);
+        let had = self.clients.insert(client, state).is_some();
+        match (&self.avatar, had) {
+            (Some(rule), _) => {
+                let pos = avatar_position(rule, client.0, now.0);
+                let (class, shape) = (rule.class, rule.shape.clone());
+                self.submit_system(SystemAction::SpawnAvatar { client, class, shape, pos });
+            }
+            (None, _) => self.welcome(client, None),
+        }
+    }
+
+    /// Publishes, for each client owning an entity in `events`, the batch `make` builds from the
+    /// events that concern it.
+    fn per_client(
+        &self,
+        events: &[CollisionEvent],
+        tick: Tick,
+        make: impl Fn(Vec<CollisionEvent>) -> ServerMessage,
+    ) {
+        let w = self.session.world();
+        let past = self.session.frame(tick).map(|f| &f.state);
+        let owner = |id: EntityId| {
+            w.bodies
+                .slot(id)
+                .and_then(|s| w.bodies.owner[s])
+                .or_else(|| past.and_then(|p| p.bodies.slot(id).and_then(|s| p.bodies.owner[s])))
+        };
+        let mut by_client: BTreeMap<ClientId, Vec<CollisionEvent>> = BTreeMap::new();
+        for e in events {
+            let (oa, ob) = (owner(e.a), owner(e.b));
+            for c in [oa, ob].into_iter().flatten() {
+                let v = by_client.entry(c).or_default();
+                if v.last().is_none_or(|l| l.key() != e.key()) {
+                    v.push(e.clone());
+                }
+            }
+        }
+        for (client, evs) in by_client {
+            let e = self.clients.get(&client).map_or(self.opts.encoding, |c| c.encoding);
+            self.put(self.events_key(client), &make(evs), e);
+        }
+    }
+}
