@@ -1,6 +1,7 @@
 //! impact: an authoritative collision server for multiplayer games.
 //!
-//! - [`geometry`]: shapes and bounds, the ground every other part stands on.
+//! - [`geometry`]: shapes and bounds, the ground every other part stands on; [`par`]: the
+//!   thread pool, and the one way stages use it so that results never depend on the thread count.
 //! - [`sim`]: the deterministic core (world state, the tick one stage per file, islands and
 //!   sleeping, the plan, ray casts against a world).
 //! - [`broadphase`], [`narrow`], [`toi`], [`terrain`]: the collision machinery the
@@ -17,6 +18,7 @@ pub mod broadphase;
 pub mod geometry;
 pub mod narrow;
 pub mod offline;
+pub mod par;
 pub mod recording;
 pub mod rollback;
 #[cfg(feature = "runtime")]

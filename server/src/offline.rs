@@ -3,7 +3,7 @@
 //! same input file give the same events and the same final state hash, bit for bit.
 
 use crate::scene::Scene;
-use crate::sim::{Plan, Stepper, TickInput, TickOutput, World};
+use crate::sim::{Plan, Pool, Stepper, TickInput, TickOutput, World};
 use impact_protocol::limits::MAX_CLIENT_MESSAGE_BYTES;
 use impact_protocol::{ClientMessage, CollisionEvent, Encoding, Phase, Response};
 use std::collections::BTreeMap;
@@ -89,11 +89,12 @@ impl OfflineReport {
     }
 }
 
-/// Runs `ticks` ticks of `scene` with `inputs`. Each event goes to `sink` as it is produced;
+/// Runs `ticks` ticks of `scene` with `inputs`, the core's parallel stages on `pool`. Each event goes to `sink` as it is produced;
 /// `progress` is called after every tick with the tick count done.
 pub fn run(
     scene: &Scene,
     plan: Plan,
+    pool: &Pool,
     ticks: u32,
     inputs: &InputScript,
     mut sink: impl FnMut(&CollisionEvent) -> std::io::Result<()>,
@@ -101,6 +102,7 @@ pub fn run(
 ) -> Result<OfflineReport, OfflineError> {
     let mut world = scene.world.clone();
     let mut stepper = Stepper::new(plan.clone(), true);
+    stepper.set_pool(pool.clone());
     let mut out = TickOutput::default();
     let mut events = BTreeMap::new();
     let start_bodies = world.bodies.len();

@@ -137,8 +137,14 @@ impl std::fmt::Display for ReplayReport {
     }
 }
 
-/// Replays the recording at `path` on `scene`, calling `progress(ticks_done)` after each tick.
-pub fn replay(scene: &Scene, path: &Path, mut progress: impl FnMut(u64)) -> Result<ReplayReport, String> {
+/// Replays the recording at `path` on `scene` (the core's parallel stages on `pool`), calling
+/// `progress(ticks_done)` after each tick.
+pub fn replay(
+    scene: &Scene,
+    path: &Path,
+    pool: &crate::par::Pool,
+    mut progress: impl FnMut(u64),
+) -> Result<ReplayReport, String> {
     let file = path.display().to_string();
     let f = std::fs::File::open(path).map_err(|e| format!("{file}: {e}"))?;
     let mut lines = std::io::BufReader::new(f).lines().enumerate();
@@ -169,6 +175,7 @@ pub fn replay(scene: &Scene, path: &Path, mut progress: impl FnMut(u64)) -> Resu
     let avatar = scene.avatar.as_ref().map(|a| (a.class, &a.shape));
     let cfg = RollbackConfig::for_world(&world);
     let mut session = Session::new(world, Plan::for_world(&scene.world), cfg);
+    session.set_pool(pool.clone());
     let mut report = ReplayReport { world: header.world.clone(), ..ReplayReport::default() };
     let started = std::time::Instant::now();
     let mut lines = lines.peekable();

@@ -285,7 +285,7 @@ pub fn pile(n: u32, ticks: u32) -> CaseResult {
                 .iter()
                 .map(|p| crate::geometry::Aabb { min: *p - DVec3::splat(radius), max: *p + DVec3::splat(radius) })
                 .collect();
-            grid.pairs(&boxes, &mut pairs);
+            grid.pairs(&boxes, &mut pairs, &crate::par::Pool::sequential());
             for &(i, j) in &pairs {
                 let pen = 2.0 * radius - (b.pos[i as usize] - b.pos[j as usize]).length();
                 if pen > worst_pair {

@@ -8,7 +8,7 @@ use impact_server::recording::{self, Recorder};
 use impact_server::rollback::log::ConfirmedTick;
 use impact_server::rollback::{RollbackConfig, Session};
 use impact_server::scene::Scene;
-use impact_server::sim::Plan;
+use impact_server::sim::{Plan, Pool};
 
 mod common;
 use common::{bat_input as bat, range};
@@ -137,7 +137,7 @@ fn a_recording_replays_and_a_tampered_one_is_caught_where_it_changed() {
         r.write(&l.to_wire());
     }
     r.flush().unwrap();
-    let report = recording::replay(&scene, &path, |_| {}).unwrap();
+    let report = recording::replay(&scene, &path, &Pool::sequential(), |_| {}).unwrap();
     assert_eq!((report.ticks, report.matched, report.first_mismatch), (300, 300, None));
     assert_eq!(report.inputs, log.iter().map(|l| l.inputs.len() as u64).sum::<u64>());
 
@@ -150,18 +150,18 @@ fn a_recording_replays_and_a_tampered_one_is_caught_where_it_changed() {
     v["inputs"][0]["actions"][0]["velocity"][0] = serde_json::json!(0.25);
     lines[at] = v.to_string();
     std::fs::write(&path, lines.join("\n")).unwrap();
-    let report = recording::replay(&scene, &path, |_| {}).unwrap();
+    let report = recording::replay(&scene, &path, &Pool::sequential(), |_| {}).unwrap();
     assert_eq!(report.first_mismatch.map(|m| m.0), Some(tampered_tick), "{report}");
 
     // A last line cut short (the server killed mid-write) is ignored, and said so.
     let cut = &text[..text.len() - 20];
     std::fs::write(&path, cut).unwrap();
-    let report = recording::replay(&scene, &path, |_| {}).unwrap();
+    let report = recording::replay(&scene, &path, &Pool::sequential(), |_| {}).unwrap();
     assert!(report.truncated && report.first_mismatch.is_none() && report.ticks == 299, "{report}");
 
     // Another scene: refused before the first tick.
     let other = Scene::load(&Scene::bundled_path("bullets")).unwrap();
-    let e = recording::replay(&other, &path, |_| {}).unwrap_err();
+    let e = recording::replay(&other, &path, &Pool::sequential(), |_| {}).unwrap_err();
     assert!(e.contains("another scene"), "{e}");
     let _ = std::fs::remove_file(&path);
 }

@@ -9,7 +9,7 @@ use impact_protocol::{
 };
 use impact_server::rollback::{RollbackConfig, Session, StalePolicy};
 use impact_server::scene::Scene;
-use impact_server::sim::{Plan, TickInput};
+use impact_server::sim::{Plan, Pool, TickInput};
 use std::collections::BTreeMap;
 
 mod common;
@@ -259,8 +259,16 @@ fn a_rewound_shot_hits_where_the_shooter_saw_the_target_without_rolling_back() {
         106,
         vec![TickInput { view_tick: Some(Tick(100)), ..TickInput::new(ClientId(1), 106, shot(106, None).actions) }],
     );
-    let offline =
-        impact_server::offline::run(&scene, Plan::for_world(&scene.world), 107, &script, |_| Ok(()), |_| {}).unwrap();
+    let offline = impact_server::offline::run(
+        &scene,
+        Plan::for_world(&scene.world),
+        &Pool::sequential(),
+        107,
+        &script,
+        |_| Ok(()),
+        |_| {},
+    )
+    .unwrap();
     assert_eq!(offline.state_hash, s.world().state_hash());
 }
 
@@ -306,8 +314,16 @@ fn ahead_inputs_on_time_never_roll_back_and_equal_the_offline_run() {
         s.advance();
     }
     assert_eq!(s.stats.rollbacks, 0, "on-time inputs need no rollback");
-    let offline =
-        impact_server::offline::run(&scene, Plan::for_world(&scene.world), 300, &script, |_| Ok(()), |_| {}).unwrap();
+    let offline = impact_server::offline::run(
+        &scene,
+        Plan::for_world(&scene.world),
+        &Pool::sequential(),
+        300,
+        &script,
+        |_| Ok(()),
+        |_| {},
+    )
+    .unwrap();
     assert_eq!(offline.state_hash, s.world().state_hash(), "the session ends where the offline run does");
 }
 

@@ -227,6 +227,7 @@ fn corridor_script_fires_rays_that_hit_and_destroy() {
     let report = impact_server::offline::run(
         &s,
         Plan::for_world(&s.world),
+        &impact_server::sim::Pool::sequential(),
         320,
         &inputs,
         |e| {

@@ -10,7 +10,7 @@ use impact_server::runtime::auth::Users;
 use impact_server::runtime::{self, ServerOptions};
 use impact_server::scene::Scene;
 use impact_server::sim::world::window_ticks;
-use impact_server::sim::Plan;
+use impact_server::sim::{Plan, Pool};
 use impact_server::{offline, recording};
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
@@ -122,6 +122,10 @@ struct Args {
     /// Serve Prometheus metrics at http://ADDR/metrics, e.g. 127.0.0.1:9898.
     #[arg(long)]
     metrics: Option<String>,
+    /// Threads for the core's parallel stages (bounds, broadphase, narrowphase, events), shared
+    /// by the process's worlds. Results never depend on it. Default: the available cores.
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..=256))]
+    threads: Option<u16>,
 }
 
 fn main() -> Result<()> {
@@ -139,16 +143,19 @@ fn main() -> Result<()> {
     for path in &args.scene {
         scenes.push((load_scene(path, &args)?, path.clone()));
     }
+    let threads = args.threads.map_or_else(Pool::available, usize::from);
+    let pool = Pool::new(threads).map_err(anyhow::Error::msg)?;
     if !args.offline {
-        return serve(scenes, &args, users);
+        return serve(scenes, &args, users, pool);
     }
     let [(scene, path)] = <[_; 1]>::try_from(scenes).map_err(|_| anyhow::anyhow!("--offline runs one --scene"))?;
     if let Some(rec) = &args.replay {
-        return replay(&scene, &path, rec);
+        return replay(&scene, &path, rec, &pool);
     }
     let plan = if args.general { Plan::general(&scene.world) } else { Plan::for_world(&scene.world) };
     println!("{}", describe(&scene, &path));
     println!("{plan}");
+    println!("  core threads    {} (--threads; results do not depend on it)", pool.threads());
     let inputs = match &args.inputs {
         Some(p) => offline::read_inputs(p)?,
         None => offline::InputScript::new(),
@@ -167,6 +174,7 @@ fn main() -> Result<()> {
     let report = offline::run(
         &scene,
         plan,
+        &pool,
         ticks,
         &inputs,
         |e| {
@@ -231,12 +239,12 @@ fn load_scene(path: &Path, args: &Args) -> Result<Scene> {
 
 /// `--offline --replay FILE`: re-simulates a recording and checks every state hash; fails on the
 /// first tick that differs.
-fn replay(scene: &Scene, path: &Path, rec: &Path) -> Result<()> {
+fn replay(scene: &Scene, path: &Path, rec: &Path, pool: &Pool) -> Result<()> {
     println!("{}", describe(scene, path));
     println!("replaying {}", rec.display());
     let tty = std::io::stderr().is_terminal();
     let mut last = Instant::now();
-    let report = recording::replay(scene, rec, |done| {
+    let report = recording::replay(scene, rec, pool, |done| {
         if last.elapsed().as_secs_f64() >= 1.0 {
             last = Instant::now();
             if tty {
@@ -257,7 +265,7 @@ fn replay(scene: &Scene, path: &Path, rec: &Path) -> Result<()> {
     Ok(())
 }
 
-fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>) -> Result<()> {
+fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>, pool: Pool) -> Result<()> {
     if let Some(r) = &args.record {
         if scenes.len() > 1 && !r.contains("{world}") {
             bail!("--record {r}: with several worlds the path must contain {{world}}");
@@ -290,6 +298,7 @@ fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>) -> Re
         rollback.stale = if args.stale == "clamp" { StalePolicy::Clamp } else { StalePolicy::Reject };
         println!("impact-server: {}{}", describe(&scene, &path), if args.standby { " (standby)" } else { "" });
         println!("{plan}");
+        println!("  core threads    {} (--threads; results do not depend on it)", pool.threads());
         let opts = ServerOptions {
             listen: if args.zenoh_config.is_some() && args.listen == ["tcp/127.0.0.1:7447"] {
                 Vec::new()
@@ -308,6 +317,7 @@ fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>) -> Re
             standby: args.standby,
             state: state.clone(),
             metrics: metrics.clone(),
+            pool: pool.clone(),
             ..ServerOptions::default()
         };
         worlds.push((scene, opts));

@@ -18,6 +18,7 @@
 //! loop exits were the sweep's main cost. Both paths give the same order and the same pairs.
 
 use crate::geometry::Aabb;
+use crate::par::{Pool, MIN_PIECE, MIN_PIECE_HEAVY};
 use glam::DVec3;
 
 /// Above this many cells per body the cell-start table would cost more than the cursors save
@@ -79,6 +80,37 @@ fn radix_sort_high(v: &mut Vec<u64>, scratch: &mut Vec<u64>, bits: u32) {
     }
 }
 
+/// Running sums in place: each piece sums itself, then adds the total of the pieces before it.
+fn prefix_sum(v: &mut [u32], pool: &Pool) {
+    let pieces = std::sync::Mutex::new(Vec::new());
+    pool.for_each_mut(v, MIN_PIECE * 8, |first, piece| {
+        let mut sum = 0u32;
+        for x in piece.iter_mut() {
+            sum += *x;
+            *x = sum;
+        }
+        pieces.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push((first, sum));
+    });
+    let mut pieces = pieces.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner);
+    if pieces.len() < 2 {
+        return;
+    }
+    pieces.sort_unstable();
+    let mut before = 0;
+    let offsets: Vec<(usize, u32)> = pieces
+        .iter()
+        .map(|&(first, total)| {
+            let o = (first, before);
+            before += total;
+            o
+        })
+        .collect();
+    pool.for_each_mut(v, MIN_PIECE * 8, |first, piece| {
+        let add = offsets.iter().find(|o| o.0 == first).map_or(0, |o| o.1);
+        piece.iter_mut().for_each(|x| *x += add);
+    });
+}
+
 impl Grid {
     /// Cell coordinates of a point (may be negative or past the grid for query points).
     #[inline]
@@ -103,7 +135,7 @@ impl Grid {
 
     /// Sorts the boxes by cell. Returns false when the world is too sparse for 64-bit keys
     /// (the caller then uses sweep and prune).
-    fn build(&mut self, aabbs: &[Aabb]) -> bool {
+    fn build(&mut self, aabbs: &[Aabb], pool: &Pool) -> bool {
         let n = aabbs.len();
         let mut origin = DVec3::splat(f64::INFINITY);
         let mut top = DVec3::splat(f64::NEG_INFINITY);
@@ -131,7 +163,7 @@ impl Grid {
         let cells = self.slab * dims[2] as u64;
         self.start.clear();
         if !self.sparse_only && cells <= DENSE_CELLS_PER_BODY * n as u64 + 4096 {
-            self.counting_sort(aabbs, cells as usize);
+            self.counting_sort(aabbs, cells as usize, pool);
             self.built = true;
             return true;
         }
@@ -166,22 +198,20 @@ impl Grid {
 
     /// Stable counting sort by cell key into `start`, `keys`, `order` and `boxes` (compact
     /// worlds: `cells` is small enough to table).
-    fn counting_sort(&mut self, aabbs: &[Aabb], cells: usize) {
+    fn counting_sort(&mut self, aabbs: &[Aabb], cells: usize, pool: &Pool) {
         // `start[k + 2]` counts cell k; after the prefix sum `start[k + 1]` is where cell k
         // begins, and filling advances it to where cell k ends, which is `start[k + 1]`'s final
-        // meaning shifted by one: so afterwards `start[k]` is where cell k begins.
+        // meaning shifted by one: so afterwards `start[k]` is where cell k begins. The maps
+        // (keys, the gathers) and the prefix sum run on `pool`; integer sums in any grouping
+        // are the same sums.
         self.start.resize(cells + 2, 0);
         let mut keys = std::mem::take(&mut self.scratch);
         keys.clear();
-        keys.extend(aabbs.iter().map(|b| self.key(self.coords(b.min))));
+        pool.map_into(aabbs.len(), MIN_PIECE, &mut keys, |i| self.key(self.coords(aabbs[i].min)));
         for &k in &keys {
             self.start[k as usize + 2] += 1;
         }
-        let mut sum = 0;
-        for s in self.start.iter_mut() {
-            sum += *s;
-            *s = sum;
-        }
+        prefix_sum(&mut self.start, pool);
         self.order.clear();
         self.order.resize(aabbs.len(), 0);
         for (i, &k) in keys.iter().enumerate() {
@@ -191,18 +221,28 @@ impl Grid {
         }
         self.start.pop();
         // Keys and boxes in sorted order.
+        let order = &self.order;
         self.keys.clear();
-        self.keys.extend(self.order.iter().map(|&i| keys[i as usize]));
+        pool.map_into(order.len(), MIN_PIECE, &mut self.keys, |k| keys[order[k] as usize]);
         self.scratch = keys; // keep the allocation
         self.boxes.clear();
-        self.boxes.extend(self.order.iter().map(|&i| aabbs[i as usize]));
+        pool.map_into(order.len(), MIN_PIECE, &mut self.boxes, |k| aabbs[order[k] as usize]);
     }
 
-    /// Appends every overlapping pair `(i, j)`, `i < j`.
-    pub fn pairs(&mut self, aabbs: &[Aabb], out: &mut Vec<(u32, u32)>) {
-        if !self.build(aabbs) {
+    /// Appends every overlapping pair `(i, j)`, `i < j`, in the sweep's order: the boxes in
+    /// cell order, each with the later boxes it overlaps. The sweep is cut into pieces of
+    /// consecutive boxes on `pool`, joined in order (the same pairs in the same order as one
+    /// thread's).
+    pub fn pairs(&mut self, aabbs: &[Aabb], out: &mut Vec<(u32, u32)>, pool: &Pool) {
+        if !self.build(aabbs, pool) {
             return super::brute::pairs(aabbs, out);
         }
+        let this = &*self;
+        pool.extend(self.keys.len(), MIN_PIECE_HEAVY, out, |range, out| this.sweep(range, out));
+    }
+
+    /// The pairs of the boxes at sorted positions `range` with the boxes after them.
+    fn sweep(&self, range: std::ops::Range<usize>, out: &mut Vec<(u32, u32)>) {
         let n = self.keys.len();
         let (row, slab) = (self.row, self.slab);
         // The four later rows: (y + 1, z), and (y - 1 ..= y + 1, z + 1), as offsets of their
@@ -218,7 +258,7 @@ impl Grid {
                     }
                 }
             };
-            for p in 0..n {
+            for p in range {
                 let key = self.keys[p] as usize;
                 let (a, body) = (self.boxes[p], self.order[p]);
                 // Own cell (later entries) and the next cell of the row.
@@ -230,8 +270,15 @@ impl Grid {
             }
             return;
         }
+        // Each run's first entry only moves forward as the sweep goes: a cursor per run, which a
+        // piece starting mid-sweep places by binary search where the sweep would have it.
         let mut cursor = [0usize; 4];
-        for p in 0..n {
+        if let Some(&first) = self.keys.get(range.start) {
+            for r in 0..4 {
+                cursor[r] = self.keys.partition_point(|&k| k < first + runs[r]);
+            }
+        }
+        for p in range {
             let key = self.keys[p];
             let a = self.boxes[p];
             let body = self.order[p];
@@ -264,7 +311,7 @@ impl Grid {
     /// Files `aabbs` for [`Grid::query`] without looking for pairs: an index over boxes that
     /// stay put (the sleeping bodies), built once and queried many times.
     pub fn index(&mut self, aabbs: &[Aabb]) {
-        self.build(aabbs);
+        self.build(aabbs, &Pool::sequential());
     }
 
     /// Whether the last build succeeded for `n` boxes (then [`Grid::query`] answers from it).
@@ -335,10 +382,17 @@ mod tests {
         assert!(want.len() > 500, "the world should be crowded: {} pairs", want.len());
         let (mut table, mut cursors) = (Grid::default(), Grid { sparse_only: true, ..Grid::default() });
         let (mut a, mut b) = (Vec::new(), Vec::new());
-        table.pairs(&aabbs, &mut a);
-        cursors.pairs(&aabbs, &mut b);
+        table.pairs(&aabbs, &mut a, &Pool::sequential());
+        cursors.pairs(&aabbs, &mut b, &Pool::sequential());
         assert!(!table.start.is_empty() && cursors.start.is_empty(), "each path taken");
         assert_eq!(a, b, "same pairs in the same order");
+        // Cut over threads, each path gives the pairs of one thread, in the same order.
+        let pool = Pool::new(3).unwrap().cut_finely();
+        for grid in [&mut table, &mut cursors] {
+            let mut c = Vec::new();
+            grid.pairs(&aabbs, &mut c, &pool);
+            assert_eq!(a, c);
+        }
         a.sort_unstable();
         assert_eq!(a, want);
     }

@@ -19,6 +19,7 @@ pub mod sap;
 pub mod sorted;
 
 use crate::geometry::Aabb;
+use crate::par::Pool;
 use rapier3d::parry;
 
 /// Which broadphase the plan chose.
@@ -68,14 +69,14 @@ impl Broadphase {
         self.kind
     }
 
-    /// Every pair `(i, j)`, `i < j`, whose boxes overlap, in the method's order. `out` is
-    /// cleared.
-    pub fn pairs(&mut self, aabbs: &[Aabb], out: &mut Vec<(u32, u32)>) {
+    /// Every pair `(i, j)`, `i < j`, whose boxes overlap, ascending. `out` is cleared. The grid
+    /// sweeps, and the sort runs, on `pool`'s threads.
+    pub fn pairs(&mut self, aabbs: &[Aabb], out: &mut Vec<(u32, u32)>, pool: &Pool) {
         out.clear();
         match self.kind {
             BroadphaseKind::BruteForce => brute::pairs(aabbs, out),
             BroadphaseKind::SweepAndPrune => self.sap.pairs(aabbs, out),
-            BroadphaseKind::Grid => self.grid.pairs(aabbs, out),
+            BroadphaseKind::Grid => self.grid.pairs(aabbs, out, pool),
             BroadphaseKind::Bvh => bvh_pairs(aabbs, out),
         }
         // Methods emit in their own order, and sweep and prune's depends on its history (a
@@ -83,7 +84,7 @@ impl Broadphase {
         // pairs, so their order reaches the result: one canonical order for every method.
         // (This comment used to say nothing downstream depended on the order; a pile run under
         // each method proved otherwise: `tests/determinism.rs`.)
-        out.sort_unstable();
+        pool.sort_unstable(out);
         // Queries answer against these boxes, not whatever the caller holds later: the
         // stepper grows a body's box when its path changes mid-step, and a method that saw
         // the grown boxes would find other partners than one that did not.
@@ -223,13 +224,15 @@ mod tests {
             let mut cursors = grid::Grid::default();
             cursors.sparse_only = true;
             let (mut a, mut b, mut c, mut d, mut e) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+            // The grids sweep in pieces on two threads, cut as finely as the pool allows.
+            let (one, two) = (Pool::sequential(), Pool::new(2).unwrap().cut_finely());
             for aabbs in &frames {
-                brute.pairs(aabbs, &mut a);
-                sap.pairs(aabbs, &mut b);
-                grid.pairs(aabbs, &mut c);
-                bvh.pairs(aabbs, &mut d);
+                brute.pairs(aabbs, &mut a, &one);
+                sap.pairs(aabbs, &mut b, &one);
+                grid.pairs(aabbs, &mut c, &two);
+                bvh.pairs(aabbs, &mut d, &one);
                 e.clear();
-                cursors.pairs(aabbs, &mut e);
+                cursors.pairs(aabbs, &mut e, &two);
                 // Each method has its own order; the sets must be equal.
                 a.sort_unstable();
                 b.sort_unstable();

@@ -223,7 +223,13 @@ impl Session {
         &self.cfg
     }
 
-    /// The core's stage times and counters.
+    /// Runs the core's parallel stages, re-simulation included, on `pool` (results do not
+    /// change).
+    pub fn set_pool(&mut self, pool: crate::par::Pool) {
+        self.stepper.set_pool(pool);
+    }
+
+    /// The stepper (its plan, stage statistics and pool).
     pub fn stepper(&self) -> &Stepper {
         &self.stepper
     }

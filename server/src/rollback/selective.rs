@@ -113,6 +113,7 @@ struct SubRun {
 fn simulate(s: &Session, from: Tick, now: Tick, reach: &BTreeSet<EntityId>) -> Option<SubRun> {
     let mut w = subset(&s.history.get(from)?.state, reach);
     let mut stepper = Stepper::new(s.stepper.plan().clone(), false);
+    stepper.set_pool(s.stepper.pool().clone());
     let mut out = TickOutput::default();
     let mut run =
         SubRun { events: Vec::new(), after: Vec::new(), paths: Vec::new(), rays: Vec::new(), skipped: Vec::new() };

@@ -67,6 +67,8 @@ pub struct ServerOptions {
     pub state: StateOptions,
     /// Prometheus metrics to keep (`--metrics`); the registry may be shared by several worlds.
     pub metrics: Option<Metrics>,
+    /// Threads for the core's parallel stages (`--threads`), shared by the process's worlds.
+    pub pool: crate::par::Pool,
 }
 
 impl Default for ServerOptions {
@@ -89,6 +91,7 @@ impl Default for ServerOptions {
             standby: false,
             state: StateOptions::default(),
             metrics: None,
+            pool: crate::par::Pool::sequential(),
         }
     }
 }

@@ -3,6 +3,7 @@
 
 use crate::broadphase::StaticIndex;
 use crate::geometry::{Aabb, Shape};
+use crate::par::{Pool, MIN_PIECE_HEAVY};
 use crate::terrain::heightfield::HeightField;
 use crate::toi::bisect::BisectConfig;
 use glam::{DQuat, DVec3};
@@ -429,15 +430,18 @@ impl World {
 
     /// The dynamic slots of each touching pair's two sides, in list order (`None` for static
     /// geometry and terrain), into `out` (cleared first).
-    pub fn touching_slots(&self, out: &mut Vec<[Option<u32>; 2]>) {
+    /// A map over the pairs, cut over `pool` (each piece starts its own cursors).
+    pub fn touching_slots(&self, out: &mut Vec<[Option<u32>; 2]>, pool: &Pool) {
         out.clear();
-        let (mut ca, mut cb) = (0, 0);
         let b = &self.bodies;
-        out.extend(
-            self.touching
-                .iter()
-                .map(|t| [b.slot_from(&mut ca, t.a).map(|s| s as u32), b.slot_from(&mut cb, t.b).map(|s| s as u32)]),
-        );
+        pool.extend(self.touching.len(), MIN_PIECE_HEAVY, out, |range, out| {
+            let (mut ca, mut cb) = (0, 0);
+            out.extend(
+                self.touching[range].iter().map(|t| {
+                    [b.slot_from(&mut ca, t.a).map(|s| s as u32), b.slot_from(&mut cb, t.b).map(|s| s as u32)]
+                }),
+            );
+        });
     }
 
     /// Bodies awake and asleep.

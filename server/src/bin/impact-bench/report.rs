@@ -21,6 +21,23 @@ pub fn mean_ms(samples: &[Duration]) -> f64 {
     samples.iter().map(Duration::as_secs_f64).sum::<f64>() * 1e3 / samples.len() as f64
 }
 
+/// The core's pools for `--threads` counts (default: one thread and the machine's cores, for
+/// the speed-up), each with its count.
+pub fn pools(threads: &[u16]) -> anyhow::Result<Vec<(usize, impact_server::par::Pool)>> {
+    let mut counts: Vec<usize> = threads.iter().map(|&t| usize::from(t)).collect();
+    if counts.is_empty() {
+        counts = vec![1, impact_server::par::Pool::available()];
+    }
+    counts.dedup();
+    counts
+        .into_iter()
+        .map(|t| {
+            anyhow::ensure!(t >= 1, "--threads must be at least 1");
+            Ok((t, impact_server::par::Pool::new(t).map_err(anyhow::Error::msg)?))
+        })
+        .collect()
+}
+
 /// Prints a JSON line (always to stdout, so `--json | grep '^{'` works with the table too).
 pub fn json_line(v: &serde_json::Value) {
     println!("{v}");

@@ -87,7 +87,7 @@ fn penetration(w: &World) -> f64 {
     let b = &w.bodies;
     let boxes: Vec<_> = (0..b.len()).map(|i| b.shape[i].world_aabb(b.pos[i], b.rot[i])).collect();
     let mut pairs = Vec::new();
-    Broadphase::new(BroadphaseKind::Grid).pairs(&boxes, &mut pairs);
+    Broadphase::new(BroadphaseKind::Grid).pairs(&boxes, &mut pairs, &impact_server::par::Pool::sequential());
     let mut worst = 0.0f64;
     for (i, j) in pairs {
         let (i, j) = (i as usize, j as usize);

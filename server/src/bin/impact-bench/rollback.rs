@@ -3,7 +3,7 @@
 //! re-simulation. The scene is the scale suite's (moving spheres) plus one sphere owned by client
 //! 1, whose late velocity change is the rollback's cause.
 
-use super::report::{json_line, median_ms, progress};
+use super::report::{json_line, median_ms, pools, progress};
 use anyhow::Result;
 use clap::Args;
 use impact_protocol::{Action, ClientId, ClientInput, Tick};
@@ -25,6 +25,10 @@ pub struct RollbackArgs {
     /// Rollbacks measured per (bodies, depth, mode); the median is reported.
     #[arg(long, default_value_t = 15)]
     repeats: u32,
+    /// Core threads (comma-separated; default: 1 and the available cores). Re-simulation runs
+    /// on the same threads as the tick.
+    #[arg(long, value_delimiter = ',')]
+    threads: Vec<u16>,
     /// Print JSON lines.
     #[arg(long)]
     json: bool,
@@ -57,9 +61,12 @@ pub fn run(a: &RollbackArgs) -> Result<()> {
         a.repeats
     );
     println!(
-        "{:>8} {:>6} {:<10} {:>10} {:>10} {:>14} {:>8}",
-        "bodies", "depth", "mode", "ms", "tick_ms", "ms/(d*tick)", "target"
+        "{:>8} {:>7} {:>6} {:<10} {:>10} {:>10} {:>14} {:>8} {:>9}",
+        "bodies", "threads", "depth", "mode", "ms", "tick_ms", "ms/(d*tick)", "target", "vs 1 thr"
     );
+    let pools = pools(&a.threads)?;
+    // One thread's rollback time per (bodies, mode, depth), for the speed-up.
+    let mut single: std::collections::BTreeMap<(u32, bool, u32), f64> = std::collections::BTreeMap::new();
     for &n in &a.bodies {
         let sc = scene(n)?;
         let owned = *sc
@@ -71,18 +78,21 @@ pub fn run(a: &RollbackArgs) -> Result<()> {
             .find(|(_, o)| o.is_some())
             .map(|(id, _)| id)
             .expect("owned body");
-        for selective in [false, true] {
+        for (selective, (threads, pool)) in
+            [false, true].into_iter().flat_map(|sel| pools.iter().map(move |p| (sel, p)))
+        {
             let mode = if selective { "selective" } else { "full" };
             let mut cfg = RollbackConfig::for_world(&sc.world);
             cfg.window_ticks = a.depths.iter().copied().max().unwrap_or(16).max(1);
             cfg.selective = selective;
             let mut s = Session::new(sc.world.clone(), Plan::for_world(&sc.world), cfg);
-            progress(&format!("{n} bodies, {mode}: warm-up"));
+            s.set_pool(pool.clone());
+            progress(&format!("{n} bodies, {mode}, {threads} threads: warm-up"));
             let tick_ms = plain_tick_ms(&mut s, 30);
             let snapshot_ms = s.stats.snapshot_time.as_secs_f64() * 1e3 / s.stats.ticks.max(1) as f64;
             let mut seq = 0;
             for &d in &a.depths {
-                progress(&format!("{n} bodies, {mode}: depth {d}"));
+                progress(&format!("{n} bodies, {mode}, {threads} threads: depth {d}"));
                 let mut samples = Vec::new();
                 for r in 0..a.repeats {
                     seq += 1;
@@ -117,15 +127,16 @@ pub fn run(a: &RollbackArgs) -> Result<()> {
                 } else {
                     "MISS"
                 };
-                println!("{n:>8} {d:>6} {mode:<10} {ms:>10.4} {tick_ms:>10.4} {ratio:>14.3} {target:>8}");
+                let one = *single.entry((n, selective, d)).or_insert(ms);
+                let speedup = one / ms;
+                println!("{n:>8} {threads:>7} {d:>6} {mode:<10} {ms:>10.4} {tick_ms:>10.4} {ratio:>14.3} {target:>8} {speedup:>8.2}x");
                 if a.json {
-                    json_line(
-                        &json!({"suite": "rollback", "bodies": n, "depth": d, "mode": mode, "ms": ms, "tick_ms": tick_ms}),
-                    );
+                    json_line(&json!({"suite": "rollback", "bodies": n, "threads": threads, "depth": d, "mode": mode,
+                        "ms": ms, "tick_ms": tick_ms, "speedup_vs_1_thread": speedup}));
                 }
             }
             println!(
-                "{:>8} {:>6} {:<10} snapshot per tick {snapshot_ms:.4} ms ({:.1} % of the tick)",
+                "{:>8} {threads:>7} {:>6} {:<10} snapshot per tick {snapshot_ms:.4} ms ({:.1} % of the tick)",
                 "",
                 "",
                 "",
@@ -133,7 +144,7 @@ pub fn run(a: &RollbackArgs) -> Result<()> {
             );
             if selective {
                 println!(
-                    "{:>8} {:>6} {:<10} selective used in {} of {} rollbacks",
+                    "{:>8} {threads:>7} {:>6} {:<10} selective used in {} of {} rollbacks",
                     "", "", "", s.stats.selective_rollbacks, s.stats.rollbacks
                 );
             }

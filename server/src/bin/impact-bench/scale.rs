@@ -5,12 +5,12 @@
 //! changes a velocity and the two stay on the same trajectories (sleeping is off: a slow body
 //! falling asleep would leave its trajectory, and the CollisionPipeline has no sleeping).
 
-use super::report::{json_line, mean_ms, median_ms, progress, svg_loglog, Series};
+use super::report::{json_line, mean_ms, median_ms, pools, progress, svg_loglog, Series};
 use anyhow::{ensure, Result};
 use clap::Args;
 use impact_server::broadphase::BroadphaseKind;
 use impact_server::scene::Scene;
-use impact_server::sim::{Plan, Stepper, TickOutput, World};
+use impact_server::sim::{Plan, Pool, Stepper, TickOutput, World};
 use rapier3d::prelude::*;
 use serde_json::json;
 use std::time::{Duration, Instant};
@@ -33,6 +33,10 @@ pub struct ScaleArgs {
     /// Also time each broadphase (brute force up to 20k bodies) and the general (GJK) path.
     #[arg(long)]
     variants: bool,
+    /// Core threads to measure impact with (comma-separated; default: 1 and the available
+    /// cores). Results are identical at every count; the pair counts are checked.
+    #[arg(long, value_delimiter = ',')]
+    threads: Vec<u16>,
     /// Print JSON lines.
     #[arg(long)]
     json: bool,
@@ -80,11 +84,14 @@ struct Measured {
     /// the median one, so the mean is reported beside it.
     mean: f64,
     pairs: usize,
+    /// The world's state hash at the end (impact): equal at every thread count.
+    hash: u64,
 }
 
-fn run_impact(world: &World, plan: Plan, warmup: u32, ticks: u32) -> Measured {
+fn run_impact(world: &World, plan: Plan, pool: &Pool, warmup: u32, ticks: u32) -> Measured {
     let mut w = world.clone();
     let mut stepper = Stepper::new(plan, std::env::var_os("IMPACT_PROFILE").is_some());
+    stepper.set_pool(pool.clone());
     let mut out = TickOutput::default();
     let mut samples = Vec::with_capacity(ticks as usize);
     for k in 0..warmup + ticks {
@@ -106,7 +113,7 @@ fn run_impact(world: &World, plan: Plan, warmup: u32, ticks: u32) -> Measured {
         }
     }
     let mean = mean_ms(&samples);
-    Measured { ms: median_ms(&mut samples), mean, pairs: w.touching.len() }
+    Measured { ms: median_ms(&mut samples), mean, pairs: w.touching.len(), hash: w.state_hash() }
 }
 
 fn run_rapier(world: &World, warmup: u32, ticks: u32) -> Measured {
@@ -150,13 +157,17 @@ fn run_rapier(world: &World, warmup: u32, ticks: u32) -> Measured {
     let pairs =
         narrow.contact_pairs().filter(|p| p.manifolds().iter().any(|m| m.points.iter().any(|c| c.dist < 0.0))).count();
     let mean = mean_ms(&samples);
-    Measured { ms: median_ms(&mut samples), mean, pairs }
+    Measured { ms: median_ms(&mut samples), mean, pairs, hash: 0 }
 }
 
 /// Runs the suite.
 pub fn run(a: &ScaleArgs) -> Result<()> {
+    let pools = pools(&a.threads)?;
     println!("scale: moving spheres r = 0.5 m, one per 8 m^3, speeds up to 5 m/s, 64 Hz; median of {} ticks after {} warm-up", a.ticks, a.warmup);
-    println!("{:>8} {:<22} {:>12} {:>10} {:>10} {:>12}", "bodies", "engine", "ms/tick", "mean", "pairs", "vs rapier");
+    println!(
+        "{:>8} {:<22} {:>7} {:>12} {:>10} {:>10} {:>12} {:>10}",
+        "bodies", "engine", "threads", "ms/tick", "mean", "pairs", "vs rapier", "vs 1 thr"
+    );
     let mut growth: Vec<(f64, f64)> = Vec::new();
     let mut rapier_points: Vec<(f64, f64)> = Vec::new();
     let mut variant_points: std::collections::BTreeMap<&str, Vec<(f64, f64)>> = std::collections::BTreeMap::new();
@@ -165,38 +176,51 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
         let scene = scene(n)?;
         let world = &scene.world;
         let plan = Plan::for_world(world);
-        progress(&format!("{n} bodies: impact ({})", plan.broadphase.name()));
-        let ours = run_impact(world, plan.clone(), a.warmup, a.ticks);
-        growth.push((f64::from(n), ours.ms));
+        let mut ours = Vec::new();
+        for (threads, pool) in &pools {
+            progress(&format!("{n} bodies: impact ({}, {threads} threads)", plan.broadphase.name()));
+            ours.push((*threads, run_impact(world, plan.clone(), pool, a.warmup, a.ticks)));
+        }
+        // Same world, same ticks: every thread count must end in the same state.
+        for (threads, m) in &ours[1..] {
+            ensure!(m.hash == ours[0].1.hash, "{threads} threads ended in another state than {}", ours[0].0);
+        }
+        growth.push((f64::from(n), ours[0].1.ms));
         let peer = if a.no_rapier {
             None
         } else {
             progress(&format!("{n} bodies: rapier"));
             Some(run_rapier(world, a.warmup, a.ticks))
         };
-        let ratio = peer.as_ref().map(|p| p.ms / ours.ms);
-        println!(
-            "{n:>8} {:<22} {:>12.4} {:>10.4} {:>10} {:>12}",
-            format!("impact ({})", plan.broadphase.name()),
-            ours.ms,
-            ours.mean,
-            ours.pairs,
-            ratio.map_or("-".into(), |r| format!("{r:.1}x faster"))
-        );
-        if a.json {
-            json_line(
-                &json!({"suite": "scale", "engine": "impact", "bodies": n, "ms_per_tick": ours.ms, "mean_ms_per_tick": ours.mean, "pairs": ours.pairs, "broadphase": plan.broadphase.name()}),
+        let single = ours[0].1.ms;
+        for (threads, m) in &ours {
+            let ratio = peer.as_ref().map(|p| p.ms / m.ms);
+            println!(
+                "{n:>8} {:<22} {threads:>7} {:>12.4} {:>10.4} {:>10} {:>12} {:>10}",
+                format!("impact ({})", plan.broadphase.name()),
+                m.ms,
+                m.mean,
+                m.pairs,
+                ratio.map_or("-".into(), |r| format!("{r:.1}x faster")),
+                format!("{:.2}x", single / m.ms)
             );
+            if a.json {
+                json_line(&json!({"suite": "scale", "engine": "impact", "bodies": n, "threads": threads,
+                    "ms_per_tick": m.ms, "mean_ms_per_tick": m.mean, "pairs": m.pairs,
+                    "broadphase": plan.broadphase.name(), "speedup_vs_1_thread": single / m.ms,
+                    "vs_rapier": ratio}));
+            }
         }
         if let Some(p) = &peer {
             rapier_points.push((f64::from(n), p.ms));
-            println!("{n:>8} {:<22} {:>12.4} {:>10.4} {:>10} {:>12}", "rapier", p.ms, p.mean, p.pairs, "1.0x");
+            println!("{n:>8} {:<22} {:>7} {:>12.4} {:>10.4} {:>10} {:>12}", "rapier", 1, p.ms, p.mean, p.pairs, "1.0x");
             if a.json {
                 json_line(
-                    &json!({"suite": "scale", "engine": "rapier", "bodies": n, "ms_per_tick": p.ms, "mean_ms_per_tick": p.mean, "pairs": p.pairs}),
+                    &json!({"suite": "scale", "engine": "rapier", "bodies": n, "threads": 1, "ms_per_tick": p.ms, "mean_ms_per_tick": p.mean, "pairs": p.pairs}),
                 );
             }
             // Same question, same answer: a mismatch means one engine is wrong.
+            let ours = &ours[0].1;
             let diff = (p.pairs as f64 - ours.pairs as f64).abs();
             ensure!(
                 diff <= 1.0 + 1e-3 * p.pairs as f64,
@@ -213,7 +237,13 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
             }
             for kind in kinds {
                 progress(&format!("{n} bodies: broadphase {}", kind.name()));
-                let m = run_impact(world, Plan { broadphase: kind, ..plan.clone() }, a.warmup.min(5), a.ticks.min(30));
+                let m = run_impact(
+                    world,
+                    Plan { broadphase: kind, ..plan.clone() },
+                    &pools[0].1,
+                    a.warmup.min(5),
+                    a.ticks.min(30),
+                );
                 variant_points.entry(kind.name()).or_default().push((f64::from(n), m.ms));
                 println!("{n:>8} {:<22} {:>12.4} {:>10}", format!("impact broadphase={}", kind.name()), m.ms, m.pairs);
                 if a.json {
@@ -223,13 +253,13 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
                 }
             }
             progress(&format!("{n} bodies: general path"));
-            let m = run_impact(world, Plan::general(world), a.warmup.min(5), a.ticks.min(30));
+            let m = run_impact(world, Plan::general(world), &pools[0].1, a.warmup.min(5), a.ticks.min(30));
             println!(
                 "{n:>8} {:<22} {:>12.4} {:>10} {:>12}",
                 "impact general (GJK)",
                 m.ms,
                 m.pairs,
-                format!("plan {:.1}x faster", m.ms / ours.ms)
+                format!("plan {:.1}x faster", m.ms / single)
             );
             if a.json {
                 json_line(

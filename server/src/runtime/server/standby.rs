@@ -261,7 +261,8 @@ impl TickLoop {
         };
         let cfg = self.session.config().clone();
         let plan = crate::sim::Plan::for_world(self.session.world());
-        let session = Session::restore(self.session.world(), &c, plan, cfg)?;
+        let mut session = Session::restore(self.session.world(), &c, plan, cfg)?;
+        session.set_pool(self.session.stepper().pool().clone());
         self.session = session;
         for cl in &c.clients {
             if let Some(avatar) = cl.avatar {

@@ -74,7 +74,8 @@ impl TickLoop {
         let mut rb = opts.rollback.clone().unwrap_or_else(|| RollbackConfig::for_world(&w));
         rb.window_ticks = rb.window_ticks.max(1);
         let plan = Plan::for_world(&w);
-        let session = Session::new(w, plan, rb);
+        let mut session = Session::new(w, plan, rb);
+        session.set_pool(opts.pool.clone());
         let metrics = opts.metrics.as_ref().map(|m| m.world(world.as_str()));
         TickLoop {
             session,
@@ -585,12 +586,7 @@ impl TickLoop {
 
     /// Publishes, for each client owning an entity in `events`, the batch `make` builds from the
     /// events that concern it.
-    fn per_client(
-        &self,
-        events: &[CollisionEvent],
-        tick: Tick,
-        make: impl Fn(Vec<CollisionEvent>) -> ServerMessage,
-    ) {
+    fn per_client(&self, events: &[CollisionEvent], tick: Tick, make: impl Fn(Vec<CollisionEvent>) -> ServerMessage) {
         let w = self.session.world();
         let past = self.session.frame(tick).map(|f| &f.state);
         let owner = |id: EntityId| {

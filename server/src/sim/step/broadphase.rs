@@ -4,6 +4,7 @@
 
 use super::{Cand, Partner, Stepper};
 use crate::geometry::Aabb;
+use crate::par::MIN_PIECE;
 use crate::sim::world::{Rule, World};
 
 impl Stepper {
@@ -19,32 +20,44 @@ impl Stepper {
             return;
         }
         self.dynamic_pairs(w);
-        self.wake_seeds.clear();
         let cfg = &w.config;
         let b = &w.bodies;
         let n = b.len();
-        for &(i, j) in &self.pairs {
-            if !self.moving[i as usize] && !self.moving[j as usize] {
-                continue; // both resting: nothing can change between them
-            }
-            if cfg.classes.rule(b.class[i as usize], b.class[j as usize]) == Rule::Ignore {
-                continue;
-            }
-            for k in [i, j] {
-                if b.asleep[k as usize] {
-                    self.wake_seeds.push(k);
+        // A map and a filter over the pairs, then over the moving bodies: cut over the pool.
+        let (pairs, moving) = (&self.pairs, &self.moving);
+        self.pool.extend(pairs.len(), MIN_PIECE, &mut self.candidates, |range, out| {
+            for &(i, j) in &pairs[range] {
+                if !moving[i as usize] && !moving[j as usize] {
+                    continue; // both resting: nothing can change between them
                 }
-            }
-            self.candidates.push(Cand::new(i, Partner::Body(j)));
-        }
-        if self.plan.statics || self.plan.terrain {
-            for i in 0..n {
-                if !self.moving[i] {
+                if cfg.classes.rule(b.class[i as usize], b.class[j as usize]) == Rule::Ignore {
                     continue;
                 }
-                self.static_partners(w, i as u32, self.aabbs[i]);
-                self.candidates.extend(self.partner_buf.iter().map(|&p| Cand::new(i as u32, p)));
+                out.push(Cand::new(i, Partner::Body(j)));
             }
+        });
+        self.wake_seeds.clear();
+        if b.asleep.contains(&true) {
+            for c in &self.candidates {
+                let Partner::Body(j) = c.b else { continue };
+                self.wake_seeds.extend([c.a, j].into_iter().filter(|&k| b.asleep[k as usize]));
+            }
+        }
+        if self.plan.statics || self.plan.terrain {
+            let mut found = std::mem::take(&mut self.static_cands);
+            found.clear();
+            let this = &*self;
+            this.pool.extend(n, MIN_PIECE, &mut found, |range, out| {
+                let (mut statics, mut partners) = (Vec::new(), Vec::new());
+                for i in range {
+                    if this.moving[i] {
+                        this.static_partners(w, i as u32, this.aabbs[i], &mut statics, &mut partners);
+                        out.extend(partners.iter().map(|&p| Cand::new(i as u32, p)));
+                    }
+                }
+            });
+            self.candidates.append(&mut found);
+            self.static_cands = found;
         }
         if !self.wake_seeds.is_empty() {
             self.islands.wake(w, &self.wake_seeds);
@@ -64,7 +77,7 @@ impl Stepper {
         let resting_sleeper = |i: usize| b.asleep[i] && !self.moving[i];
         self.split = (0..n).any(resting_sleeper);
         if !self.split {
-            self.broadphase.pairs(&self.aabbs, &mut self.pairs);
+            self.broadphase.pairs(&self.aabbs, &mut self.pairs, &self.pool);
             return;
         }
         self.bp_slots.clear();
@@ -86,7 +99,7 @@ impl Stepper {
             self.sleeper_only.extend(self.sleeper_boxes.iter().map(|(b, _)| *b));
             self.sleepers.index(&self.sleeper_only);
         }
-        self.broadphase.pairs(&self.bp_boxes, &mut self.pairs);
+        self.broadphase.pairs(&self.bp_boxes, &mut self.pairs, &self.pool);
         // Local indices to slots: `bp_slots` ascends, so the pairs stay `(lo, hi)` and sorted.
         for p in &mut self.pairs {
             *p = (self.bp_slots[p.0 as usize], self.bp_slots[p.1 as usize]);
@@ -133,23 +146,39 @@ impl Stepper {
         }
     }
 
-    /// The static bodies and terrain body `i` can meet within `aabb`, into `partner_buf`.
-    pub(super) fn static_partners(&mut self, w: &World, i: u32, aabb: Aabb) {
+    /// The static bodies and terrain body `i` can meet within `aabb`, into `partners` (cleared;
+    /// `statics` is scratch).
+    pub(super) fn static_partners(
+        &self,
+        w: &World,
+        i: u32,
+        aabb: Aabb,
+        statics: &mut Vec<u32>,
+        partners: &mut Vec<Partner>,
+    ) {
         let b = &w.bodies;
-        self.partner_buf.clear();
+        partners.clear();
         if self.plan.statics {
-            w.statics.index.query(&aabb, &mut self.static_buf);
-            for &s in &self.static_buf {
+            w.statics.index.query(&aabb, statics);
+            for &s in statics.iter() {
                 if w.config.classes.rule(b.class[i as usize], w.statics.class[s as usize]) != Rule::Ignore {
-                    self.partner_buf.push(Partner::Static(s));
+                    partners.push(Partner::Static(s));
                 }
             }
         }
         if let Some(t) = &w.statics.terrain {
             if t.field.aabb().overlaps(&aabb) && w.config.classes.rule(b.class[i as usize], t.class) != Rule::Ignore {
-                self.partner_buf.push(Partner::Terrain);
+                partners.push(Partner::Terrain);
             }
         }
+    }
+
+    /// [`Stepper::static_partners`] into the stepper's own buffer, `partner_buf`.
+    pub(super) fn static_partners_buf(&mut self, w: &World, i: u32, aabb: Aabb) {
+        let (mut statics, mut partners) = (std::mem::take(&mut self.static_buf), std::mem::take(&mut self.partner_buf));
+        self.static_partners(w, i, aabb, &mut statics, &mut partners);
+        self.static_buf = statics;
+        self.partner_buf = partners;
     }
 
     /// Adds a pair found mid-step to `candidates`. A pair found again is listed again, on
@@ -193,7 +222,7 @@ impl Stepper {
         self.query_buf = buf;
         self.aabbs[i] = self.aabbs[i].union(&swept);
         if self.plan.statics || self.plan.terrain {
-            self.static_partners(w, body, swept);
+            self.static_partners_buf(w, body, swept);
             for k in 0..self.partner_buf.len() {
                 let p = self.partner_buf[k];
                 if let Some(imp) = self.impact(w, body, p, t, tests) {

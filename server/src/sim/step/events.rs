@@ -1,7 +1,8 @@
 //! Stage 8, events: the touching set at the end of the tick, merged with the one before it and
 //! the tick's impacts into begin and end events.
 
-use super::{ordered, response_of, PairRecord, Partner, Stepper, TickOutput};
+use super::{ordered, response_of, Cand, PairRecord, Partner, Stepper, TickOutput};
+use crate::par::MIN_PIECE_HEAVY;
 use crate::sim::world::{Touch, World};
 use glam::DVec3;
 use impact_protocol::{CollisionEvent, EntityId, EventStatus, Phase, Response};
@@ -10,56 +11,19 @@ impl Stepper {
     /// Builds the touching set at the end of the tick and turns the tick's story into begin,
     /// end and destroy events, and removes the destroyed bodies.
     pub(super) fn finish_events(&mut self, w: &mut World, out: &mut TickOutput) {
-        let cfg = w.config.clone();
-        let slop = cfg.contact_slop_m;
         let tick = w.tick;
-        let b = &w.bodies;
-        // Touching at the end: every candidate pair still alive, within the slop. A pair whose
-        // paths never changed reuses the end contact found with its time of impact. (Pairs
-        // found twice mid-step give duplicate entries, removed below.)
+        // Touching at the end: every candidate pair still alive, within the slop (a map over
+        // the candidates, cut over the pool). Pairs found twice mid-step give duplicate
+        // entries, removed below.
         self.touching_now.clear();
         let mut end_records = std::mem::take(&mut self.end_records);
         end_records.clear();
-        for cand in &self.candidates {
-            let (a, p) = (cand.a, cand.b);
-            let i = a as usize;
-            if self.dead[i] || matches!(p, Partner::Body(j) if self.dead[j as usize]) {
-                continue;
+        let this = &*self;
+        this.pool.extend(this.candidates.len(), MIN_PIECE_HEAVY, &mut end_records, |range, out| {
+            for cand in &this.candidates[range] {
+                out.extend(this.end_record(w, cand));
             }
-            let (id_b, class_b) = match p {
-                Partner::Body(j) => (b.id[j as usize], b.class[j as usize]),
-                Partner::Static(s) => (w.statics.id[s as usize], w.statics.class[s as usize]),
-                Partner::Terrain => {
-                    let t = w.statics.terrain.as_ref().expect("terrain");
-                    (t.id, t.class)
-                }
-            };
-            let pa = b.pos[i];
-            let pb = match p {
-                Partner::Body(j) => b.pos[j as usize],
-                Partner::Static(s) => w.statics.pos[s as usize],
-                Partner::Terrain => DVec3::ZERO,
-            };
-            let unchanged = cand.end_valid
-                && self.version[i] == 0
-                && !matches!(p, Partner::Body(j) if self.version[j as usize] != 0);
-            let end = if unchanged { cand.end } else { self.contact(w, i, pa, p, pb, slop) };
-            if let Some(c) = end {
-                let vb = match p {
-                    Partner::Body(j) => b.vel[j as usize],
-                    _ => DVec3::ZERO,
-                };
-                end_records.push(PairRecord {
-                    key: (b.id[i], id_b),
-                    t: 1.0,
-                    point: pa + c.point,
-                    normal_lo_hi: c.normal,
-                    depth: c.depth.max(0.0),
-                    closing: -(vb - b.vel[i]).dot(c.normal),
-                    response: response_of(cfg.classes.rule(b.class[i], class_b)),
-                });
-            }
-        }
+        });
         // Three sorted lists, walked together by pair key: P, the pairs touching before; E, the
         // pairs touching now that were tested (`end_records`); R, this tick's impacts (the
         // first per pair). A linear merge instead of a lookup per pair keeps this stage O(n).
@@ -71,11 +35,17 @@ impl Stepper {
         let mut end_order = std::mem::take(&mut self.end_order);
         end_order.clear();
         end_order.extend(end_records.iter().enumerate().map(|(k, r)| (pack(key_of(r)), k as u32)));
-        end_order.sort_unstable();
+        self.pool.sort_unstable(&mut end_order);
         end_order.dedup_by_key(|e| e.0);
-        self.records.sort_by(|x, y| key_of(x).cmp(&key_of(y)).then(x.t.total_cmp(&y.t)));
-        self.records.dedup_by(|x, y| key_of(x) == key_of(y)); // keeps the earliest impact
-                                                              // Resting pairs were not candidates: they keep touching while both ends stay put.
+        // R likewise, by (pair, time of impact, index): of a pair's impacts the earliest stays
+        // (the first recorded among equal times).
+        let mut record_order = std::mem::take(&mut self.record_order);
+        record_order.clear();
+        record_order
+            .extend(self.records.iter().enumerate().map(|(k, r)| (pack(key_of(r)), ordered_bits(r.t), k as u32)));
+        self.pool.sort_unstable(&mut record_order);
+        record_order.dedup_by_key(|e| e.0);
+        // Resting pairs were not candidates: they keep touching while both ends stay put.
         let still = |slot: Option<u32>| match slot {
             Some(s) => !self.dead[s as usize] && !self.moving[s as usize],
             None => true, // static or terrain
@@ -85,11 +55,11 @@ impl Stepper {
         loop {
             let kp = prev.get(ip).map(Touch::key);
             let ke = end_order.get(ie).map(|e| unpack(e.0));
-            let kr = self.records.get(ir).map(key_of);
+            let kr = record_order.get(ir).map(|e| unpack(e.0));
             let Some(key) = [kp, ke, kr].into_iter().flatten().min() else { break };
             let was = kp == Some(key);
             let tested = ke == Some(key);
-            let impact = if kr == Some(key) { Some(self.records[ir]) } else { None };
+            let impact = if kr == Some(key) { Some(self.records[record_order[ir].2 as usize]) } else { None };
             let end = if tested { Some(end_records[end_order[ie].1 as usize]) } else { None };
             let now = tested || (was && impact.is_none() && self.touch_slots[ip].iter().all(|s| still(*s)));
             if now {
@@ -137,14 +107,62 @@ impl Stepper {
             ir += usize::from(impact.is_some());
         }
         sort_events(&mut out.events);
-        w.touching.clear();
-        w.touching.extend_from_slice(&self.touching_now);
+        // The new touching list becomes the world's; the old one's buffer is reused next tick.
+        std::mem::swap(&mut w.touching, &mut self.touching_now);
         self.end_records = end_records;
         self.end_order = end_order;
+        self.record_order = record_order;
         if self.dead.contains(&true) {
             w.bodies.remove_flagged(&self.dead);
         }
     }
+
+    /// A candidate's record if it touches at the end of the tick (alive, within the slop). A
+    /// pair whose paths never changed reuses the end contact found with its time of impact.
+    fn end_record(&self, w: &World, cand: &Cand) -> Option<PairRecord> {
+        let b = &w.bodies;
+        let (a, p) = (cand.a, cand.b);
+        let i = a as usize;
+        if self.dead[i] || matches!(p, Partner::Body(j) if self.dead[j as usize]) {
+            return None;
+        }
+        let (id_b, class_b) = match p {
+            Partner::Body(j) => (b.id[j as usize], b.class[j as usize]),
+            Partner::Static(s) => (w.statics.id[s as usize], w.statics.class[s as usize]),
+            Partner::Terrain => {
+                let t = w.statics.terrain.as_ref().expect("terrain");
+                (t.id, t.class)
+            }
+        };
+        let pa = b.pos[i];
+        let pb = match p {
+            Partner::Body(j) => b.pos[j as usize],
+            Partner::Static(s) => w.statics.pos[s as usize],
+            Partner::Terrain => DVec3::ZERO,
+        };
+        let unchanged =
+            cand.end_valid && self.version[i] == 0 && !matches!(p, Partner::Body(j) if self.version[j as usize] != 0);
+        let c = if unchanged { cand.end } else { self.contact(w, i, pa, p, pb, w.config.contact_slop_m) }?;
+        let vb = match p {
+            Partner::Body(j) => b.vel[j as usize],
+            _ => DVec3::ZERO,
+        };
+        Some(PairRecord {
+            key: (b.id[i], id_b),
+            t: 1.0,
+            point: pa + c.point,
+            normal_lo_hi: c.normal,
+            depth: c.depth.max(0.0),
+            closing: -(vb - b.vel[i]).dot(c.normal),
+            response: response_of(w.config.classes.rule(b.class[i], class_b)),
+        })
+    }
+}
+
+/// `t` as an integer in `f64::total_cmp`'s order.
+fn ordered_bits(t: f64) -> i64 {
+    let bits = t.to_bits() as i64;
+    bits ^ ((((bits >> 63) as u64) >> 1) as i64)
 }
 
 /// The order events are published in, `(toi, a, b, phase)`, one per key.

@@ -4,6 +4,7 @@
 
 use super::Stepper;
 use crate::geometry::Aabb;
+use crate::par::MIN_PIECE;
 use crate::sim::world::World;
 use glam::DVec3;
 
@@ -66,10 +67,13 @@ impl Stepper {
         self.clip_len.resize(n, 0);
         self.clip.resize(n, [DVec3::ZERO; 3]);
         let pad = DVec3::splat(slop);
-        for i in 0..n {
-            let p0 = b.pos[i];
-            let p1 = p0 + b.vel[i] * dt;
-            self.aabbs[i] = Aabb { min: p0.min(p1) + b.aabb_lo[i] - pad, max: p0.max(p1) + b.aabb_hi[i] + pad };
-        }
+        self.pool.for_each_mut(&mut self.aabbs, MIN_PIECE, |first, boxes| {
+            for (k, out) in boxes.iter_mut().enumerate() {
+                let i = first + k;
+                let p0 = b.pos[i];
+                let p1 = p0 + b.vel[i] * dt;
+                *out = Aabb { min: p0.min(p1) + b.aabb_lo[i] - pad, max: p0.max(p1) + b.aabb_hi[i] + pad };
+            }
+        });
     }
 }

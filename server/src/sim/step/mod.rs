@@ -98,6 +98,7 @@ impl StageStats {
     }
 }
 
+use crate::par::Pool;
 use crate::sim::output::TickOutput;
 
 #[derive(Clone, Copy, Debug)]
@@ -165,6 +166,15 @@ impl Cand {
     }
 }
 
+/// A candidate's answers from the narrowphase: its first contact over the step, its contact at
+/// the end of the step, and the overlap tests spent.
+#[derive(Clone, Copy, Debug)]
+struct Found {
+    imp: Option<Impact>,
+    end: Option<Contact>,
+    tests: u32,
+}
+
 /// One pair's story this tick, for events.
 #[derive(Clone, Copy, Debug)]
 struct PairRecord {
@@ -181,6 +191,8 @@ struct PairRecord {
 #[derive(Debug)]
 pub struct Stepper {
     plan: Plan,
+    /// Threads for the stages that are maps over bodies or pairs.
+    pool: Pool,
     broadphase: Broadphase,
     /// Stage times and counters.
     pub stats: StageStats,
@@ -196,12 +208,19 @@ pub struct Stepper {
     clip_len: Vec<u8>,
     pairs: Vec<(u32, u32)>,
     candidates: Vec<Cand>,
+    /// Moving bodies' static and terrain partners, before they join `candidates`.
+    static_cands: Vec<Cand>,
+    /// The narrowphase's answers, by candidate.
+    found: Vec<Found>,
     heap: BinaryHeap<Queued>,
     impacts: Vec<Impact>,
     triggers: Vec<Impact>,
     records: Vec<PairRecord>,
+    /// Triggers' records (and overlap tests spent), before they join `records`.
+    trigger_records: Vec<(Option<PairRecord>, u32)>,
     end_records: Vec<PairRecord>,
     end_order: Vec<(u64, u32)>,
+    record_order: Vec<(u64, i64, u32)>,
     touching_now: Vec<crate::sim::world::Touch>,
     query_buf: Vec<u32>,
     static_buf: Vec<u32>,
@@ -235,6 +254,7 @@ impl Stepper {
         Stepper {
             broadphase: Broadphase::new(plan.broadphase),
             plan,
+            pool: Pool::sequential(),
             stats: StageStats::default(),
             profile,
             aabbs: Vec::new(),
@@ -248,12 +268,16 @@ impl Stepper {
             clip_len: Vec::new(),
             pairs: Vec::new(),
             candidates: Vec::new(),
+            static_cands: Vec::new(),
+            found: Vec::new(),
             heap: BinaryHeap::new(),
             impacts: Vec::new(),
             triggers: Vec::new(),
             records: Vec::new(),
+            trigger_records: Vec::new(),
             end_records: Vec::new(),
             end_order: Vec::new(),
+            record_order: Vec::new(),
             touching_now: Vec::new(),
             query_buf: Vec::new(),
             static_buf: Vec::new(),
@@ -273,6 +297,16 @@ impl Stepper {
             sleeper_only: Vec::new(),
             sleepers: Grid::default(),
         }
+    }
+
+    /// Runs the parallel stages on `pool` from now on (results do not change).
+    pub fn set_pool(&mut self, pool: Pool) {
+        self.pool = pool;
+    }
+
+    /// The threads in use.
+    pub fn pool(&self) -> &Pool {
+        &self.pool
     }
 
     /// The box each body's path stayed within during the last tick, by slot of the world as it
@@ -311,6 +345,12 @@ impl Stepper {
         inputs: &[TickInput],
         out: &mut TickOutput,
     ) {
+        let pool = self.pool.clone();
+        pool.run(|| self.stages(w, system, inputs, out));
+    }
+
+    /// The stages of [`Stepper::step_with`], on a thread of the pool.
+    fn stages(&mut self, w: &mut World, system: &[input::SystemAction], inputs: &[TickInput], out: &mut TickOutput) {
         out.events.clear();
         out.rays.clear();
         out.skipped.clear();

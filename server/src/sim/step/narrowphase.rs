@@ -2,9 +2,10 @@
 //! the step (the analytic swept sphere for two spheres, conservative advancement then sampling
 //! and bisection for the rest) and the contact at the end of the step on the current paths.
 
-use super::{Cand, Impact, Partner, Queued, StageStats, Stepper};
+use super::{Cand, Found, Impact, Partner, Queued, StageStats, Stepper};
 use crate::geometry::Shape;
 use crate::narrow::{self, Contact};
+use crate::par::MIN_PIECE_HEAVY;
 use crate::sim::world::{Rule, World};
 use crate::toi::analytic::{swept_sphere, SweptSphere};
 use crate::toi::bisect::first_contact;
@@ -24,21 +25,31 @@ impl Stepper {
         self.heap.clear();
         self.impacts.clear();
         self.triggers.clear();
-        for k in 0..self.candidates.len() {
-            let Cand { a, b: p, .. } = self.candidates[k];
-            let (imp, end) = match self.sphere_pair(w, a, p) {
+        // Each pair's answer depends on the world as the stage found it only: a map over the
+        // candidates, cut over the pool; the impacts are then queued in candidate order.
+        let mut found = std::mem::take(&mut self.found);
+        found.clear();
+        let this = &*self;
+        this.pool.map_into(this.candidates.len(), MIN_PIECE_HEAVY, &mut found, |k| {
+            let Cand { a, b: p, .. } = this.candidates[k];
+            let mut tests = 0;
+            let (imp, end) = match this.sphere_pair(w, a, p) {
                 Some(fast) => fast,
-                None => {
-                    let imp = self.impact(w, a, p, 0.0, &mut stats.toi_tests);
-                    (imp, self.end_contact(w, a, p))
-                }
+                None => (this.impact(w, a, p, 0.0, &mut tests), this.end_contact(w, a, p)),
             };
-            self.candidates[k].end = end;
-            self.candidates[k].end_valid = true;
-            if let Some(imp) = imp {
+            Found { imp, end, tests }
+        });
+        for (cand, f) in self.candidates.iter_mut().zip(&found) {
+            cand.end = f.end;
+            cand.end_valid = true;
+        }
+        for f in &found {
+            stats.toi_tests += f.tests;
+            if let Some(imp) = f.imp {
                 self.schedule(w, imp);
             }
         }
+        self.found = found;
     }
 
     pub(super) fn is_trigger(&self, w: &World, imp: &Impact) -> bool {

@@ -3,8 +3,10 @@
 //! whose path changes is searched again against everything its new path can reach.
 
 use super::{response_of, Impact, PairRecord, Partner, StageStats, Stepper};
-use crate::sim::world::{Rule, World};
+use crate::par::MIN_PIECE_HEAVY;
+use crate::sim::world::{ClassId, Rule, World};
 use glam::DVec3;
+use impact_protocol::EntityId;
 
 /// Extra fraction of the normal velocity removed by slide and inelastic contacts.
 const SLIDE_OVERCLIP: f64 = 1.0e-3;
@@ -82,55 +84,82 @@ impl Stepper {
             }
         }
         // Triggers: record those whose bodies kept their paths; search again those that changed.
-        let mut triggers = std::mem::take(&mut self.triggers);
-        for imp in &triggers {
-            if self.dead[imp.a as usize] || matches!(imp.b, Partner::Body(j) if self.dead[j as usize]) {
-                continue;
+        // Recording changes no path, so this is a map over the triggers, cut over the pool.
+        let triggers = std::mem::take(&mut self.triggers);
+        let mut recorded = std::mem::take(&mut self.trigger_records);
+        recorded.clear();
+        let this = &*self;
+        this.pool.extend(triggers.len(), MIN_PIECE_HEAVY, &mut recorded, |range, out| {
+            for imp in &triggers[range] {
+                if this.dead[imp.a as usize] || matches!(imp.b, Partner::Body(j) if this.dead[j as usize]) {
+                    continue;
+                }
+                if this.is_current(imp) {
+                    out.push((Some(this.record(w, imp)), 0));
+                } else {
+                    let mut tests = 0;
+                    let again = this.impact(w, imp.a, imp.b, this.search_from(imp), &mut tests);
+                    out.push((again.map(|again| this.record(w, &again)), tests));
+                }
             }
-            if self.is_current(imp) {
-                self.resolve(w, imp);
-            } else if let Some(again) = self.impact(w, imp.a, imp.b, self.search_from(imp), &mut stats.toi_tests) {
-                self.resolve(w, &again);
-            }
+        });
+        for (record, tests) in recorded.drain(..) {
+            stats.toi_tests += tests;
+            self.records.extend(record);
         }
-        triggers.clear();
+        self.trigger_records = recorded;
         self.triggers = triggers;
+        self.triggers.clear();
         stats.resolutions = resolutions;
     }
 
-    /// Applies the response for one impact. Returns the bodies whose paths changed.
-    pub(super) fn resolve(&mut self, w: &mut World, imp: &Impact) -> [Option<u32>; 2] {
-        // The settings are shared (`Arc`); hold them through a second handle only where a
-        // body's path changes, not for every recorded trigger.
-        let classes = &w.config.classes;
-        let i = imp.a as usize;
-        let t = imp.t;
-        let (class_b, id_b, inv_mb) = match imp.b {
+    /// The class, id and inverse mass of an impact's partner.
+    fn partner_props(w: &World, p: Partner) -> (ClassId, EntityId, f64) {
+        match p {
             Partner::Body(j) => (w.bodies.class[j as usize], w.bodies.id[j as usize], w.bodies.inv_mass[j as usize]),
             Partner::Static(s) => (w.statics.class[s as usize], w.statics.id[s as usize], 0.0),
             Partner::Terrain => {
                 let t = w.statics.terrain.as_ref().expect("terrain partner implies terrain");
                 (t.class, t.id, 0.0)
             }
-        };
-        let class_a = w.bodies.class[i];
-        let rule = classes.rule(class_a, class_b);
+        }
+    }
+
+    /// What events will tell of an impact: where, along which normal, how fast it closed and
+    /// the response its classes' rule gives.
+    pub(super) fn record(&self, w: &World, imp: &Impact) -> PairRecord {
+        let i = imp.a as usize;
+        let (class_b, id_b, _) = Self::partner_props(w, imp.b);
+        let rule = w.config.classes.rule(w.bodies.class[i], class_b);
+        let (_, vb) = self.partner_at(w, imp.b, imp.t);
+        let n = imp.contact.normal;
+        PairRecord {
+            key: (w.bodies.id[i], id_b),
+            t: imp.t,
+            point: self.pos_at(w, i, imp.t) + imp.contact.point,
+            normal_lo_hi: n,
+            depth: imp.contact.depth,
+            closing: -(vb - w.bodies.vel[i]).dot(n),
+            response: response_of(rule),
+        }
+    }
+
+    /// Applies the response for one impact. Returns the bodies whose paths changed.
+    pub(super) fn resolve(&mut self, w: &mut World, imp: &Impact) -> [Option<u32>; 2] {
+        // The settings are shared (`Arc`); hold them through a second handle only where a
+        // body's path changes, not for every recorded trigger.
+        let i = imp.a as usize;
+        let t = imp.t;
+        let (class_b, _, inv_mb) = Self::partner_props(w, imp.b);
+        let rule = w.config.classes.rule(w.bodies.class[i], class_b);
         let pa = self.pos_at(w, i, t);
         let (pb, vb) = self.partner_at(w, imp.b, t);
         let va = w.bodies.vel[i];
         let n = imp.contact.normal;
         let closing = -(vb - va).dot(n);
         let inv_ma = w.bodies.inv_mass[i];
-        let response = response_of(rule);
-        self.records.push(PairRecord {
-            key: (w.bodies.id[i], id_b),
-            t,
-            point: pa + imp.contact.point,
-            normal_lo_hi: n,
-            depth: imp.contact.depth,
-            closing,
-            response,
-        });
+        let record = self.record(w, imp);
+        self.records.push(record);
         let mut changed = [None, None];
         if matches!(rule, Rule::Ignore | Rule::Trigger) {
             return changed;

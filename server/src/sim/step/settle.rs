@@ -1,6 +1,7 @@
 //! Stage 7, settle: what time-of-impact resolution left overlapping in piles and stacks.
 
 use super::{Cand, Partner, Stepper};
+use crate::par::MIN_PIECE;
 use crate::sim::world::{Rule, World};
 use glam::DVec3;
 
@@ -17,10 +18,13 @@ impl Stepper {
     pub(super) fn settle(&mut self, w: &mut World) {
         // Every body to the end of its path.
         let dt = w.config.dt;
-        let b = &mut w.bodies;
-        for i in 0..b.len() {
-            b.pos[i] = self.base[i] + b.vel[i] * ((1.0 - self.t0[i]) * dt);
-        }
+        let (base, t0, vel) = (&self.base, &self.t0, &w.bodies.vel);
+        self.pool.for_each_mut(&mut w.bodies.pos, MIN_PIECE, |first, pos| {
+            for (k, p) in pos.iter_mut().enumerate() {
+                let i = first + k;
+                *p = base[i] + vel[i] * ((1.0 - t0[i]) * dt);
+            }
+        });
         let slop = w.config.contact_slop_m;
         for _ in 0..SETTLE_PASSES {
             let mut moved = false;
@@ -103,7 +107,7 @@ impl Stepper {
                 }
                 self.query_buf = buf;
                 if self.plan.statics || self.plan.terrain {
-                    self.static_partners(w, body, here);
+                    self.static_partners_buf(w, body, here);
                     for k in 0..self.partner_buf.len() {
                         self.add_candidate(body, self.partner_buf[k]);
                     }

@@ -1,0 +1,225 @@
+//! The tick's thread pool, and the one way the stages use it: a loop over `0..n` is cut into
+//! consecutive pieces, each piece is worked by one thread exactly as the sequential loop works
+//! it, and the pieces' outputs are joined in order. Every parallel loop in the core is a map or
+//! a filter over its items (each item's output depends on the world as the stage found it, never
+//! on another item's output), so joining in order gives the sequential loop's output bit for bit,
+//! however many threads there are and wherever the cuts fall. That is why a result cannot depend
+//! on the thread count: no stage adds floating-point numbers across pieces, no stage lets the
+//! first thread to finish decide an order, and what depends on order (resolution in time of
+//! impact, the resting-contact and settle passes) stays on one thread. The determinism test
+//! (`server/tests/threads.rs`) checks it over every bundled scene and a rollback stress run.
+
+use rayon::prelude::*;
+use std::ops::Range;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+/// Threads the tick may use, shared by every stepper of a process (clones share the threads).
+/// The default is one thread: no pool at all, the loops run inline.
+#[derive(Clone, Debug, Default)]
+pub struct Pool {
+    pool: Option<Arc<rayon::ThreadPool>>,
+    /// Cut every loop as finely as the threads allow, whatever its length (tests: small
+    /// scenes then take the parallel paths too).
+    fine: bool,
+}
+
+/// Items per piece for cheap per-item work (a box, a position, a key: a few nanoseconds each).
+/// A piece must hold tens of microseconds of work: waking a sleeping thread of the pool costs
+/// about that on a virtual machine, so shorter loops run inline.
+pub const MIN_PIECE: usize = 16 * 1024;
+
+/// Items per piece for expensive per-item work (a grid cell sweep, a narrowphase pair, a
+/// contact record: tens of nanoseconds each).
+pub const MIN_PIECE_HEAVY: usize = 1024;
+
+impl Pool {
+    /// One thread: every loop runs inline on the caller's thread.
+    pub fn sequential() -> Pool {
+        Pool { pool: None, fine: false }
+    }
+
+    /// A pool of `threads` threads (1 or 0: [`Pool::sequential`]).
+    pub fn new(threads: usize) -> Result<Pool, String> {
+        if threads <= 1 {
+            return Ok(Pool::sequential());
+        }
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .thread_name(|i| format!("impact-core-{i}"))
+            .build()
+            .map_err(|e| format!("starting {threads} core threads: {e}"))?;
+        Ok(Pool { pool: Some(Arc::new(pool)), fine: false })
+    }
+
+    /// The same threads, with every loop cut into pieces however short it is (for tests: the
+    /// bundled scenes are small, and the joins must be exercised on them).
+    pub fn cut_finely(mut self) -> Pool {
+        self.fine = true;
+        self
+    }
+
+    /// The machine's available cores (the default of `--threads`).
+    pub fn available() -> usize {
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    }
+
+    /// Threads in the pool.
+    pub fn threads(&self) -> usize {
+        self.pool.as_ref().map_or(1, |p| p.current_num_threads())
+    }
+
+    /// Runs `f` on one of the pool's threads (inline without a pool). A whole tick runs this
+    /// way, so its sequential parts run on a pool thread too and the loops it cuts are worked
+    /// by that thread and the others: the pool's threads are all the threads the tick uses.
+    ///
+    /// While `f` runs, the pool's other threads stay awake, taking the pieces of each loop as
+    /// it is cut and yielding the core to the operating system in between. Asleep, a thread
+    /// takes 30-60 us to wake on a virtual machine (measured here), and a tick cuts a dozen
+    /// loops separated by sequential stages: on 10,000 bodies that cost more than the second
+    /// thread saved.
+    pub fn run<R: Send>(&self, f: impl FnOnce() -> R + Send) -> R {
+        let Some(pool) = &self.pool else { return f() };
+        pool.install(|| {
+            let me = rayon::current_thread_index();
+            let done = Arc::new(AtomicBool::new(false));
+            let awake = done.clone();
+            rayon::spawn_broadcast(move |ctx| {
+                if Some(ctx.index()) == me {
+                    return;
+                }
+                // Look for work a microsecond or so apart (looking touches the other threads'
+                // queues, and looking constantly slowed the tick's own thread down by half),
+                // and let the operating system run another thread now and then.
+                let mut idle = 0u32;
+                while !awake.load(Ordering::Acquire) {
+                    if rayon::yield_now() == Some(rayon::Yield::Executed) {
+                        idle = 0;
+                        continue;
+                    }
+                    idle += 1;
+                    if idle % 64 == 0 {
+                        std::thread::yield_now();
+                    } else {
+                        for _ in 0..64 {
+                            std::hint::spin_loop();
+                        }
+                    }
+                }
+            });
+            let r = f();
+            done.store(true, Ordering::Release);
+            r
+        })
+    }
+
+    /// The pool and the number of pieces for `n` items, or `None` to run inline.
+    fn cut(&self, n: usize, min_piece: usize) -> Option<(&rayon::ThreadPool, usize)> {
+        let pool = self.pool.as_deref()?;
+        // A few pieces per thread, so one slow piece (a crowded region) does not hold the rest.
+        let min_piece = if self.fine { 1 } else { min_piece.max(1) };
+        let pieces = (n / min_piece).min(pool.current_num_threads() * 4);
+        (pieces > 1).then_some((pool, pieces))
+    }
+
+    /// Appends to `out` what `f(0..n, out)` appends, with `0..n` cut into pieces worked in
+    /// parallel and joined in order. `f` must append for a range exactly what it appends for
+    /// the range's pieces one after another (a map or a filter over the items does).
+    pub fn extend<T: Send>(
+        &self,
+        n: usize,
+        min_piece: usize,
+        out: &mut Vec<T>,
+        f: impl Fn(Range<usize>, &mut Vec<T>) + Sync,
+    ) {
+        let Some((pool, pieces)) = self.cut(n, min_piece) else { return f(0..n, out) };
+        let parts: Vec<Vec<T>> = pool.install(|| {
+            (0..pieces)
+                .into_par_iter()
+                .map(|k| {
+                    let mut part = Vec::new();
+                    f(n * k / pieces..n * (k + 1) / pieces, &mut part);
+                    part
+                })
+                .collect()
+        });
+        out.reserve(parts.iter().map(Vec::len).sum());
+        for part in parts {
+            out.extend(part);
+        }
+    }
+
+    /// Appends `f(i)` for every `i` in `0..n`, in order, computed in parallel and written in
+    /// place (no piece is copied into `out` afterwards).
+    pub fn map_into<T: Send>(
+        &self,
+        n: usize,
+        min_piece: usize,
+        out: &mut Vec<T>,
+        f: impl Fn(usize) -> T + Sync + Send,
+    ) {
+        match self.cut(n, min_piece) {
+            Some((pool, _)) => {
+                let min = if self.fine { 1 } else { min_piece };
+                pool.install(|| out.par_extend((0..n).into_par_iter().with_min_len(min).map(f)))
+            }
+            None => out.extend((0..n).map(f)),
+        }
+    }
+
+    /// Calls `f(first, piece)` on consecutive pieces of `items` in parallel (`first`: the index
+    /// of the piece's first item). For element-wise maps: each item's new value must depend on
+    /// nothing another item's call writes.
+    pub fn for_each_mut<T: Send>(&self, items: &mut [T], min_piece: usize, f: impl Fn(usize, &mut [T]) + Sync) {
+        let Some((pool, pieces)) = self.cut(items.len(), min_piece) else { return f(0, items) };
+        let size = items.len().div_ceil(pieces);
+        pool.install(|| items.par_chunks_mut(size).enumerate().for_each(|(k, piece)| f(k * size, piece)));
+    }
+
+    /// Sorts `v`. The order is total and no two items are equal unless identical (callers sort
+    /// tuples that end in a unique index or are unique themselves), so the sorted slice is the
+    /// same whichever algorithm and however many threads sorted it.
+    pub fn sort_unstable<T: Ord + Send>(&self, v: &mut [T]) {
+        match self.cut(v.len(), MIN_PIECE) {
+            Some((pool, _)) => pool.install(|| v.par_sort_unstable()),
+            None => v.sort_unstable(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A filter-map gives the same output inline and cut over 2, 3 and 4 threads, for lengths
+    /// around every cut.
+    #[test]
+    fn pieces_join_to_the_sequential_output() {
+        let f = |r: Range<usize>, out: &mut Vec<(usize, u64)>| {
+            for i in r {
+                if i % 3 != 1 {
+                    out.push((i, (i as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15)));
+                }
+            }
+        };
+        for threads in [2, 3, 4] {
+            let pool = Pool::new(threads).unwrap();
+            assert_eq!(pool.threads(), threads);
+            for n in [0, 1, 7, 255, 256, 257, 1000, 4099] {
+                let (mut inline, mut cut) = (vec![(9, 9)], vec![(9, 9)]);
+                Pool::sequential().extend(n, 16, &mut inline, f);
+                pool.extend(n, 16, &mut cut, f);
+                assert_eq!(inline, cut, "n = {n}, {threads} threads");
+                let mut a: Vec<u64> = (0..n as u64).collect();
+                let mut b = a.clone();
+                Pool::sequential().for_each_mut(&mut a, 16, |first, p| {
+                    p.iter_mut().enumerate().for_each(|(k, x)| *x = *x * 7 + (first + k) as u64)
+                });
+                pool.for_each_mut(&mut b, 16, |first, p| {
+                    p.iter_mut().enumerate().for_each(|(k, x)| *x = *x * 7 + (first + k) as u64)
+                });
+                assert_eq!(a, b);
+            }
+        }
+    }
+}
