@@ -123,7 +123,9 @@ struct Args {
     #[arg(long)]
     metrics: Option<String>,
     /// Threads for the core's parallel stages (bounds, broadphase, narrowphase, events), shared
-    /// by the process's worlds. Results never depend on it. Default: the available cores.
+    /// by the process's worlds. Results never depend on it. Default 1: on the 2-core machine
+    /// measured, 2 threads were faster in some runs and slower in others (BENCHMARKS.md,
+    /// "Threads"); measure on yours before raising it.
     #[arg(long, value_parser = clap::value_parser!(u16).range(1..=256))]
     threads: Option<u16>,
 }
@@ -143,7 +145,7 @@ fn main() -> Result<()> {
     for path in &args.scene {
         scenes.push((load_scene(path, &args)?, path.clone()));
     }
-    let threads = args.threads.map_or_else(Pool::available, usize::from);
+    let threads = args.threads.map_or(1, usize::from);
     let pool = Pool::new(threads).map_err(anyhow::Error::msg)?;
     if !args.offline {
         return serve(scenes, &args, users, pool);
