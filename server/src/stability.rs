@@ -8,7 +8,7 @@ use crate::scene::Scene;
 use crate::sim::{Plan, Stepper, TickOutput, World};
 use crate::trials::{self, Kind, Method, Setup};
 use glam::DVec3;
-use impact_protocol::{Action, ClientId, ClientInput, Tick};
+use impact_protocol::{Action, ClientId, ClientInput, EntityId, Tick};
 
 /// One case's outcome.
 #[derive(Clone, Debug)]
@@ -340,6 +340,21 @@ pub fn elastic(n: u32, ticks: u32) -> CaseResult {
     r
 }
 
+/// The rollback stress run's input for tick `t`: client 1 steers `player` with a velocity that
+/// changes every tick (shared with the thread-count test).
+pub fn stress_input(player: EntityId, t: u32) -> ClientInput {
+    ClientInput {
+        view_tick: None,
+        client: ClientId(1),
+        seq: t,
+        tick: Tick(t),
+        actions: vec![Action::SetVelocity {
+            entity: player,
+            velocity: [(f64::from(t % 7) - 3.0) * 2.0, f64::from(t % 3) - 1.0, (f64::from(t % 5) - 2.0) * 2.0],
+        }],
+    }
+}
+
 /// Depth-16 rollbacks every tick for `ticks` ticks: a session receiving every input 16 ticks
 /// late ends bit-identical (state hash and confirmed events) to one receiving them on time.
 pub fn rollback_stress(ticks: u32) -> CaseResult {
@@ -353,16 +368,7 @@ pub fn rollback_stress(ticks: u32) -> CaseResult {
     cfg.window_ticks = 17;
     let mut on_time = Session::new(scene.world.clone(), Plan::for_world(&scene.world), cfg.clone());
     let mut late = Session::new(scene.world.clone(), Plan::for_world(&scene.world), cfg);
-    let input = |t: u32| ClientInput {
-        view_tick: None,
-        client: ClientId(1),
-        seq: t,
-        tick: Tick(t),
-        actions: vec![Action::SetVelocity {
-            entity: player,
-            velocity: [(f64::from(t % 7) - 3.0) * 2.0, f64::from(t % 3) - 1.0, (f64::from(t % 5) - 2.0) * 2.0],
-        }],
-    };
+    let input = |t: u32| stress_input(player, t);
     let (mut same, mut finite, mut confirmed, mut depth_max, mut refused) = (true, true, 0u64, 0u32, 0u32);
     for t in 0..ticks {
         refused += u32::from(on_time.submit(input(t)).is_err());

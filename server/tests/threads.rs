@@ -6,7 +6,7 @@
 //! runs on an ordinary pool, whose thresholds it crosses. `.ci/run` also compares
 //! `impact-server --offline --threads 1` against `--threads 2` on every bundled scene.
 
-use impact_protocol::{Action, ClientId, ClientInput, CollisionEvent, Tick};
+use impact_protocol::{ClientId, CollisionEvent};
 use impact_server::offline::{self, InputScript};
 use impact_server::rollback::{RollbackConfig, Session};
 use impact_server::scene::Scene;
@@ -123,16 +123,7 @@ fn rollback_stress_is_identical_at_one_two_and_four_threads() {
     let scene = Scene::parse(&text, "<rollback>").unwrap();
     let b = &scene.world.bodies;
     let player = b.id[b.owner.iter().position(|o| *o == Some(ClientId(1))).unwrap()];
-    let input = |t: u32| ClientInput {
-        view_tick: None,
-        client: ClientId(1),
-        seq: t,
-        tick: Tick(t),
-        actions: vec![Action::SetVelocity {
-            entity: player,
-            velocity: [(f64::from(t % 7) - 3.0) * 2.0, f64::from(t % 3) - 1.0, (f64::from(t % 5) - 2.0) * 2.0],
-        }],
-    };
+    let input = |t: u32| impact_server::stability::stress_input(player, t);
     let run = |pool: &Pool| {
         let mut cfg = RollbackConfig::for_world(&scene.world);
         cfg.window_ticks = 17;
