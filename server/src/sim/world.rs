@@ -236,6 +236,21 @@ pub struct Touch {
     pub friction_impulse: DVec3,
 }
 
+/// Where a touching pair's two sides were when the list was written: dynamic slots, or
+/// [`TouchHint::NOT_A_BODY`]. See [`World::touching_slots`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TouchHint {
+    /// The pair, as [`Touch::key`].
+    pub key: (EntityId, EntityId),
+    /// The slots of `key.0` and `key.1`.
+    pub slots: [u32; 2],
+}
+
+impl TouchHint {
+    /// A side that is static geometry or terrain.
+    pub const NOT_A_BODY: u32 = u32::MAX;
+}
+
 impl Touch {
     /// `(a, b)`: the order the touching list is sorted in.
     #[inline]
@@ -430,17 +445,35 @@ impl World {
 
     /// The dynamic slots of each touching pair's two sides, in list order (`None` for static
     /// geometry and terrain), into `out` (cleared first).
-    /// A map over the pairs, cut over `pool` (each piece starts its own cursors).
-    pub fn touching_slots(&self, out: &mut Vec<[Option<u32>; 2]>, pool: &Pool) {
+    ///
+    /// `hints` are the slots the stepper knew when it wrote the list (by entry; any list will
+    /// do, even another world's): an entry whose pair matches and whose slots still hold those
+    /// ids is taken as is, the rest are searched for. The list's higher ids are in no order,
+    /// so searching costs a binary search a pair; the hints make a tick that follows a tick
+    /// one load. A map over the pairs, cut over `pool` (each piece starts its own cursors).
+    pub fn touching_slots(&self, out: &mut Vec<[Option<u32>; 2]>, hints: &[TouchHint], pool: &Pool) {
         out.clear();
         let b = &self.bodies;
+        // A hinted slot holds the id, or the side was static at the hint, and an id that was
+        // static geometry or terrain is never a body.
+        let check = |slot: u32, id: EntityId| {
+            if slot == TouchHint::NOT_A_BODY {
+                Some(None)
+            } else {
+                (b.id.get(slot as usize) == Some(&id)).then_some(Some(slot))
+            }
+        };
         pool.extend(self.touching.len(), MIN_PIECE_HEAVY, out, |range, out| {
             let (mut ca, mut cb) = (0, 0);
-            out.extend(
-                self.touching[range].iter().map(|t| {
-                    [b.slot_from(&mut ca, t.a).map(|s| s as u32), b.slot_from(&mut cb, t.b).map(|s| s as u32)]
-                }),
-            );
+            for k in range {
+                let t = &self.touching[k];
+                let hinted = hints.get(k).filter(|h| h.key == t.key());
+                let a = hinted.and_then(|h| check(h.slots[0], t.a));
+                let a = a.unwrap_or_else(|| b.slot_from(&mut ca, t.a).map(|s| s as u32));
+                let bb = hinted.and_then(|h| check(h.slots[1], t.b));
+                let bb = bb.unwrap_or_else(|| b.slot_from(&mut cb, t.b).map(|s| s as u32));
+                out.push([a, bb]);
+            }
         });
     }
 
@@ -560,6 +593,58 @@ mod tests {
             let mut cursor = 0;
             for a in 0..400 {
                 prop_assert_eq!(b.slot_from(&mut cursor, EntityId(a)), b.slot(EntityId(a)));
+            }
+        }
+
+        /// Slots from hints equal slots searched for, whatever the hints: right, stale (a body
+        /// removed since moved every slot after it), for other pairs, or too few.
+        #[test]
+        fn hinted_slots_equal_searched(n in 2u32..60, pairs in proptest::collection::vec((0u32..80, 0u32..80), 0..60),
+                                       removed in 0u32..60, shuffle in 0usize..4, cut in 0usize..60) {
+            let text = "[world]\nname = \"w\"\n[[class]]\nname = \"ball\"\n";
+            let mut w = crate::scene::Scene::parse(text, "<w>").expect("valid").world;
+            for k in 0..n {
+                w.spawn(NewBody {
+                    class: ClassId(0),
+                    shape: Shape::Sphere { radius: 0.5 },
+                    pos: DVec3::new(f64::from(k), 0.0, 0.0),
+                    vel: DVec3::ZERO,
+                    rot: DQuat::IDENTITY,
+                    inv_mass: 1.0,
+                    owner: None,
+                });
+            }
+            // Ids at or past `n` are not bodies (they stand for static geometry here).
+            let mut keys: Vec<(u32, u32)> = pairs.into_iter().filter(|p| p.0 < p.1).collect();
+            keys.sort_unstable();
+            keys.dedup();
+            w.touching = keys.iter().map(|&(a, b)| Touch {
+                a: EntityId(a), b: EntityId(b), normal: DVec3::X, depth: 0.0, impulse: 0.0,
+                friction_impulse: DVec3::ZERO,
+            }).collect();
+            let pool = Pool::sequential();
+            let mut searched = Vec::new();
+            w.touching_slots(&mut searched, &[], &pool);
+            let hint = |s: &[Option<u32>; 2], t: &Touch| TouchHint {
+                key: t.key(), slots: s.map(|s| s.unwrap_or(TouchHint::NOT_A_BODY)),
+            };
+            let right: Vec<TouchHint> = searched.iter().zip(&w.touching).map(|(s, t)| hint(s, t)).collect();
+            let mut hints = right.clone();
+            let turn = shuffle.min(hints.len());
+            hints.rotate_left(turn);
+            hints.truncate(cut);
+            for hs in [right, hints] {
+                let mut hinted = Vec::new();
+                w.touching_slots(&mut hinted, &hs, &pool);
+                prop_assert_eq!(&hinted, &searched);
+                // The same hints after a body is removed: every slot past it has moved.
+                let mut v = w.clone();
+                let dead: Vec<bool> = (0..n).map(|k| k == removed % n).collect();
+                v.bodies.remove_flagged(&dead);
+                let (mut want, mut got) = (Vec::new(), Vec::new());
+                v.touching_slots(&mut want, &[], &pool);
+                v.touching_slots(&mut got, &hs, &pool);
+                prop_assert_eq!(got, want);
             }
         }
     }

@@ -65,7 +65,7 @@ impl Stepper {
         self.contact_impulse.clear();
         self.contact_impulse.extend(w.touching.iter().map(|t| (t.impulse, t.friction_impulse)));
         // The pairs' slots, for this stage and for events (no body comes or goes in between).
-        w.touching_slots(&mut self.touch_slots, &self.pool);
+        w.touching_slots(&mut self.touch_slots, &self.touch_hints, &self.pool);
         if !self.plan.gravity || w.touching.is_empty() {
             return;
         }

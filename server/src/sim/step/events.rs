@@ -3,7 +3,7 @@
 
 use super::{ordered, response_of, Cand, PairRecord, Partner, Stepper, TickOutput};
 use crate::par::MIN_PIECE_HEAVY;
-use crate::sim::world::{Touch, World};
+use crate::sim::world::{Touch, TouchHint, World};
 use glam::DVec3;
 use impact_protocol::{CollisionEvent, EntityId, EventStatus, Phase, Response};
 
@@ -51,6 +51,8 @@ impl Stepper {
             None => true, // static or terrain
         };
         let prev = &w.touching;
+        let mut hints = std::mem::take(&mut self.touch_hints_next);
+        hints.clear();
         let (mut ip, mut ie, mut ir) = (0, 0, 0);
         loop {
             let kp = prev.get(ip).map(Touch::key);
@@ -65,11 +67,16 @@ impl Stepper {
             if now {
                 // The contact cache: a tested pair's normal from this tick, a resting pair's
                 // from when it was last tested. Normals point from the lower id to the higher.
-                let (normal, depth) = match end {
-                    Some(e) if e.key.0 <= e.key.1 => (e.normal_lo_hi, e.depth),
-                    Some(e) => (-e.normal_lo_hi, e.depth),
-                    None => (prev[ip].normal, prev[ip].depth),
+                let (normal, depth, slots) = match end {
+                    Some(e) if e.key.0 <= e.key.1 => (e.normal_lo_hi, e.depth, e.slots),
+                    Some(e) => (-e.normal_lo_hi, e.depth, [e.slots[1], e.slots[0]]),
+                    None => (
+                        prev[ip].normal,
+                        prev[ip].depth,
+                        self.touch_slots[ip].map(|s| s.unwrap_or(TouchHint::NOT_A_BODY)),
+                    ),
                 };
+                hints.push(TouchHint { key, slots });
                 // The resting solver's impulse carries over while the contact lasts.
                 let (impulse, friction_impulse) =
                     if was { self.contact_impulse.get(ip).copied().unwrap_or_default() } else { Default::default() };
@@ -109,6 +116,10 @@ impl Stepper {
         sort_events(&mut out.events);
         // The new touching list becomes the world's; the old one's buffer is reused next tick.
         std::mem::swap(&mut w.touching, &mut self.touching_now);
+        if self.dead.contains(&true) {
+            hints.clear(); // the removals below move slots
+        }
+        self.touch_hints_next = std::mem::replace(&mut self.touch_hints, hints);
         self.end_records = end_records;
         self.end_order = end_order;
         self.record_order = record_order;
@@ -149,6 +160,7 @@ impl Stepper {
         };
         Some(PairRecord {
             key: (b.id[i], id_b),
+            slots: [a, p.slot()],
             t: 1.0,
             point: pa + c.point,
             normal_lo_hi: c.normal,

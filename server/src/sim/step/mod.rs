@@ -22,7 +22,7 @@ use crate::geometry::{Aabb, Shape};
 use crate::narrow::{self, Contact, Kernel};
 use crate::sim::input::{self, TickInput};
 use crate::sim::plan::Plan;
-use crate::sim::world::{ClassId, Rule, World};
+use crate::sim::world::{ClassId, Rule, TouchHint, World};
 use glam::{DQuat, DVec3};
 use impact_protocol::{EntityId, Response};
 use std::cmp::Ordering;
@@ -38,6 +38,16 @@ pub enum Partner {
     Static(u32),
     /// The terrain.
     Terrain,
+}
+
+impl Partner {
+    /// The dynamic slot, or [`TouchHint::NOT_A_BODY`].
+    fn slot(self) -> u32 {
+        match self {
+            Partner::Body(j) => j,
+            _ => TouchHint::NOT_A_BODY,
+        }
+    }
 }
 
 /// Time spent per stage and work counted, for the last tick and accumulated.
@@ -179,6 +189,9 @@ struct Found {
 #[derive(Clone, Copy, Debug)]
 struct PairRecord {
     key: (EntityId, EntityId),
+    /// The dynamic slots of `key`'s two sides ([`TouchHint::NOT_A_BODY`] for static geometry and
+    /// terrain).
+    slots: [u32; 2],
     t: f64,
     point: DVec3,
     normal_lo_hi: DVec3,
@@ -234,6 +247,10 @@ pub struct Stepper {
     contact_impulse: Vec<(f64, DVec3)>,
     /// Slots of `World::touching`'s pairs as the tick began (set by `contacts`).
     touch_slots: Vec<[Option<u32>; 2]>,
+    /// The slots of the touching list this stepper last wrote, by entry (see
+    /// [`World::touching_slots`]).
+    touch_hints: Vec<TouchHint>,
+    touch_hints_next: Vec<TouchHint>,
     /// Sleepers are kept out of the broadphase method this tick (see `dynamic_pairs`).
     split: bool,
     /// When split: the slots the broadphase method holds (ascending) and their boxes.
@@ -289,6 +306,8 @@ impl Stepper {
             rows: Vec::new(),
             contact_impulse: Vec::new(),
             touch_slots: Vec::new(),
+            touch_hints: Vec::new(),
+            touch_hints_next: Vec::new(),
             split: false,
             bp_slots: Vec::new(),
             bp_boxes: Vec::new(),

@@ -135,6 +135,7 @@ impl Stepper {
         let n = imp.contact.normal;
         PairRecord {
             key: (w.bodies.id[i], id_b),
+            slots: [imp.a, imp.b.slot()],
             t: imp.t,
             point: self.pos_at(w, i, imp.t) + imp.contact.point,
             normal_lo_hi: n,
