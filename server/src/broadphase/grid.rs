@@ -53,33 +53,6 @@ pub struct Grid {
     start: Vec<u32>,
 }
 
-/// Stable LSD radix sort of `v` by bits `32 .. 32 + bits` (11-bit digits).
-fn radix_sort_high(v: &mut Vec<u64>, scratch: &mut Vec<u64>, bits: u32) {
-    const DIGIT: u32 = 11;
-    let mut shift = 32;
-    while shift < 32 + bits {
-        let mut count = [0u32; 1 << DIGIT];
-        for e in v.iter() {
-            count[((e >> shift) & ((1 << DIGIT) - 1)) as usize] += 1;
-        }
-        let mut sum = 0;
-        for c in count.iter_mut() {
-            let here = *c;
-            *c = sum;
-            sum += here;
-        }
-        scratch.clear();
-        scratch.resize(v.len(), 0);
-        for e in v.iter() {
-            let d = ((e >> shift) & ((1 << DIGIT) - 1)) as usize;
-            scratch[count[d] as usize] = *e;
-            count[d] += 1;
-        }
-        std::mem::swap(v, scratch);
-        shift += DIGIT;
-    }
-}
-
 /// Running sums in place: each piece sums itself, then adds the total of the pieces before it.
 fn prefix_sum(v: &mut [u32], pool: &Pool) {
     let pieces = std::sync::Mutex::new(Vec::new());
@@ -172,7 +145,7 @@ impl Grid {
         packed.clear();
         if key_bits <= 32 {
             packed.extend(aabbs.iter().enumerate().map(|(i, b)| self.key(self.coords(b.min)) << 32 | i as u64));
-            radix_sort_high(&mut packed, &mut self.scratch, key_bits);
+            super::radix_sort(&mut packed, &mut self.scratch, 32, key_bits);
         } else {
             // Keys too wide to pack with an index: a comparison sort on (key, body).
             let mut wide: Vec<(u64, u32)> =
