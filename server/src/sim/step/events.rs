@@ -54,14 +54,21 @@ impl Stepper {
         let mut hints = std::mem::take(&mut self.touch_hints_next);
         hints.clear();
         let (mut ip, mut ie, mut ir) = (0, 0, 0);
+        // Packed keys, with `u64::MAX` for a list that has run out (no pair packs to it: its
+        // two ids would be equal): the smallest of three is then two branch-free minimums.
+        const DONE: u64 = u64::MAX;
         loop {
-            let kp = prev.get(ip).map(Touch::key);
-            let ke = end_order.get(ie).map(|e| unpack(e.0));
-            let kr = record_order.get(ir).map(|e| unpack(e.0));
-            let Some(key) = [kp, ke, kr].into_iter().flatten().min() else { break };
-            let was = kp == Some(key);
-            let tested = ke == Some(key);
-            let impact = if kr == Some(key) { Some(self.records[record_order[ir].2 as usize]) } else { None };
+            let kp = prev.get(ip).map_or(DONE, |t| pack(t.key()));
+            let ke = end_order.get(ie).map_or(DONE, |e| e.0);
+            let kr = record_order.get(ir).map_or(DONE, |e| e.0);
+            let packed = kp.min(ke).min(kr);
+            if packed == DONE {
+                break;
+            }
+            let key = unpack(packed);
+            let was = kp == packed;
+            let tested = ke == packed;
+            let impact = if kr == packed { Some(self.records[record_order[ir].2 as usize]) } else { None };
             let end = if tested { Some(end_records[end_order[ie].1 as usize]) } else { None };
             let now = tested || (was && impact.is_none() && self.touch_slots[ip].iter().all(|s| still(*s)));
             if now {
