@@ -4,6 +4,8 @@
 //! step, and the counts are checked equal. impact's response is `trigger`, so neither engine
 //! changes a velocity and the two stay on the same trajectories (sleeping is off: a slow body
 //! falling asleep would leave its trajectory, and the CollisionPipeline has no sleeping).
+//! rapier runs on one thread, or, built with `--features rapier-parallel`, at every `--threads`
+//! count with its own parallel pipeline.
 
 use super::report::{json_line, mean_ms, median_ms, pools, progress, svg_loglog, Series};
 use anyhow::{ensure, Result};
@@ -34,7 +36,8 @@ pub struct ScaleArgs {
     #[arg(long)]
     variants: bool,
     /// Core threads to measure impact with (comma-separated; default: 1 and the available
-    /// cores). Results are identical at every count; the pair counts are checked.
+    /// cores). Results are identical at every count; the pair counts are checked. Built with
+    /// `--features rapier-parallel`, rapier's parallel pipeline runs at each count too.
     #[arg(long, value_delimiter = ',')]
     threads: Vec<u16>,
     /// Print JSON lines.
@@ -77,6 +80,9 @@ seed = 1
 "#
     )
 }
+
+/// Whether rapier was built with its parallel pipeline (`--features rapier-parallel`).
+const RAPIER_PARALLEL: bool = cfg!(feature = "rapier-parallel");
 
 struct Measured {
     ms: f64,
@@ -164,6 +170,9 @@ fn run_rapier(world: &World, warmup: u32, ticks: u32) -> Measured {
 pub fn run(a: &ScaleArgs) -> Result<()> {
     let pools = pools(&a.threads)?;
     println!("scale: moving spheres r = 0.5 m, one per 8 m^3, speeds up to 5 m/s, 64 Hz; median of {} ticks after {} warm-up", a.ticks, a.warmup);
+    if RAPIER_PARALLEL {
+        println!("rapier built with its parallel pipeline: impact at N threads is compared with rapier at N threads");
+    }
     println!(
         "{:>8} {:<22} {:>7} {:>12} {:>10} {:>10} {:>12} {:>10}",
         "bodies", "engine", "threads", "ms/tick", "mean", "pairs", "vs rapier", "vs 1 thr"
@@ -186,15 +195,27 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
             ensure!(m.hash == ours[0].1.hash, "{threads} threads ended in another state than {}", ours[0].0);
         }
         growth.push((f64::from(n), ours[0].1.ms));
-        let peer = if a.no_rapier {
-            None
-        } else {
-            progress(&format!("{n} bodies: rapier"));
-            Some(run_rapier(world, a.warmup, a.ticks))
-        };
+        // rapier at 1 thread, and with its parallel pipeline built in, at each thread count, in
+        // a rayon pool of that many threads (its stages use the pool they are called from).
+        let mut peers: Vec<(usize, Measured)> = Vec::new();
+        if !a.no_rapier {
+            let counts: Vec<usize> = if RAPIER_PARALLEL { pools.iter().map(|(t, _)| *t).collect() } else { vec![1] };
+            for t in counts {
+                progress(&format!("{n} bodies: rapier ({t} threads)"));
+                let m = if RAPIER_PARALLEL {
+                    let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build()?;
+                    pool.install(|| run_rapier(world, a.warmup, a.ticks))
+                } else {
+                    run_rapier(world, a.warmup, a.ticks)
+                };
+                peers.push((t, m));
+            }
+        }
         let single = ours[0].1.ms;
         for (threads, m) in &ours {
-            let ratio = peer.as_ref().map(|p| p.ms / m.ms);
+            // Against rapier on as many threads when its parallel pipeline ran, else on one.
+            let peer = peers.iter().find(|(t, _)| t == threads).or(peers.first());
+            let ratio = peer.map(|(_, p)| p.ms / m.ms);
             println!(
                 "{n:>8} {:<22} {threads:>7} {:>12.4} {:>10.4} {:>10} {:>12} {:>10}",
                 format!("impact ({})", plan.broadphase.name()),
@@ -208,23 +229,34 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
                 json_line(&json!({"suite": "scale", "engine": "impact", "bodies": n, "threads": threads,
                     "ms_per_tick": m.ms, "mean_ms_per_tick": m.mean, "pairs": m.pairs,
                     "broadphase": plan.broadphase.name(), "speedup_vs_1_thread": single / m.ms,
-                    "vs_rapier": ratio}));
+                    "vs_rapier": ratio, "vs_rapier_threads": peer.map(|(t, _)| t)}));
             }
         }
-        if let Some(p) = &peer {
-            rapier_points.push((f64::from(n), p.ms));
-            println!("{n:>8} {:<22} {:>7} {:>12.4} {:>10.4} {:>10} {:>12}", "rapier", 1, p.ms, p.mean, p.pairs, "1.0x");
+        for (threads, p) in &peers {
+            let one = peers[0].1.ms;
+            if *threads == 1 {
+                rapier_points.push((f64::from(n), p.ms));
+            }
+            let name = if RAPIER_PARALLEL { "rapier (parallel)" } else { "rapier" };
+            println!(
+                "{n:>8} {name:<22} {threads:>7} {:>12.4} {:>10.4} {:>10} {:>12} {:>10}",
+                p.ms,
+                p.mean,
+                p.pairs,
+                format!("{:.1}x", one / p.ms),
+                format!("{:.2}x", one / p.ms)
+            );
             if a.json {
-                json_line(
-                    &json!({"suite": "scale", "engine": "rapier", "bodies": n, "threads": 1, "ms_per_tick": p.ms, "mean_ms_per_tick": p.mean, "pairs": p.pairs}),
-                );
+                json_line(&json!({"suite": "scale", "engine": "rapier", "bodies": n, "threads": threads,
+                    "parallel_pipeline": RAPIER_PARALLEL, "ms_per_tick": p.ms, "mean_ms_per_tick": p.mean,
+                    "pairs": p.pairs, "speedup_vs_1_thread": one / p.ms}));
             }
             // Same question, same answer: a mismatch means one engine is wrong.
             let ours = &ours[0].1;
             let diff = (p.pairs as f64 - ours.pairs as f64).abs();
             ensure!(
                 diff <= 1.0 + 1e-3 * p.pairs as f64,
-                "pair counts differ: impact {} rapier {}",
+                "pair counts differ: impact {} rapier ({threads} threads) {}",
                 ours.pairs,
                 p.pairs
             );
