@@ -20,8 +20,8 @@ impl Stepper {
         end_records.clear();
         let this = &*self;
         this.pool.extend(this.candidates.len(), MIN_PIECE_HEAVY, &mut end_records, |range, out| {
-            for cand in &this.candidates[range] {
-                out.extend(this.end_record(w, cand));
+            for k in range {
+                out.extend(this.end_record(w, k));
             }
         });
         // Three sorted lists, walked together by pair key: P, the pairs touching before; E, the
@@ -137,9 +137,9 @@ impl Stepper {
 
     /// A candidate's record if it touches at the end of the tick (alive, within the slop). A
     /// pair whose paths never changed reuses the end contact found with its time of impact.
-    fn end_record(&self, w: &World, cand: &Cand) -> Option<PairRecord> {
+    fn end_record(&self, w: &World, k: usize) -> Option<PairRecord> {
         let b = &w.bodies;
-        let (a, p) = (cand.a, cand.b);
+        let Cand { a, b: p } = self.candidates[k];
         let i = a as usize;
         if self.dead[i] || matches!(p, Partner::Body(j) if self.dead[j as usize]) {
             return None;
@@ -158,9 +158,10 @@ impl Stepper {
             Partner::Static(s) => w.statics.pos[s as usize],
             Partner::Terrain => DVec3::ZERO,
         };
-        let unchanged =
-            cand.end_valid && self.version[i] == 0 && !matches!(p, Partner::Body(j) if self.version[j as usize] != 0);
-        let c = if unchanged { cand.end } else { self.contact(w, i, pa, p, pb, w.config.contact_slop_m) }?;
+        let c = match self.end_if_unchanged(k) {
+            Some(end) => end,
+            None => self.contact(w, i, pa, p, pb, w.config.contact_slop_m),
+        }?;
         let vb = match p {
             Partner::Body(j) => b.vel[j as usize],
             _ => DVec3::ZERO,

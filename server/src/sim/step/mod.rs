@@ -163,16 +163,11 @@ impl Ord for Queued {
 struct Cand {
     a: u32,
     b: Partner,
-    /// Contact at the end of the step on the paths the tick started with (within the slop).
-    /// Valid while neither body's path changed.
-    end: Option<Contact>,
-    /// `end` was computed (candidates found mid-step have none).
-    end_valid: bool,
 }
 
 impl Cand {
     fn new(a: u32, b: Partner) -> Cand {
-        Cand { a, b, end: None, end_valid: false }
+        Cand { a, b }
     }
 }
 
@@ -223,8 +218,10 @@ pub struct Stepper {
     candidates: Vec<Cand>,
     /// Moving bodies' static and terrain partners, before they join `candidates`.
     static_cands: Vec<Cand>,
-    /// The narrowphase's answers, by candidate.
+    /// The narrowphase's answers, by candidate (candidates found later in the tick have none).
     found: Vec<Found>,
+    /// The candidates a settle pass may push, by index.
+    pushable: Vec<u32>,
     heap: BinaryHeap<Queued>,
     impacts: Vec<Impact>,
     triggers: Vec<Impact>,
@@ -287,6 +284,7 @@ impl Stepper {
             candidates: Vec::new(),
             static_cands: Vec::new(),
             found: Vec::new(),
+            pushable: Vec::new(),
             heap: BinaryHeap::new(),
             impacts: Vec::new(),
             triggers: Vec::new(),
@@ -430,6 +428,16 @@ impl Stepper {
         w.tick = w.tick.next();
         stats.ticks += 1;
         self.stats = stats;
+    }
+
+    /// The contact at the end of the step that the narrowphase found for candidate `k` (`None`
+    /// inside: apart), while neither body's path has changed since; `None` when it must be
+    /// computed again.
+    fn end_if_unchanged(&self, k: usize) -> Option<Option<Contact>> {
+        let found = self.found.get(k)?;
+        let Cand { a, b } = self.candidates[k];
+        let changed = self.version[a as usize] != 0 || matches!(b, Partner::Body(j) if self.version[j as usize] != 0);
+        (!changed).then_some(found.end)
     }
 
     /// Position of dynamic body `i` at step fraction `t` along its current path.

@@ -39,10 +39,6 @@ impl Stepper {
             };
             Found { imp, end, tests }
         });
-        for (cand, f) in self.candidates.iter_mut().zip(&found) {
-            cand.end = f.end;
-            cand.end_valid = true;
-        }
         for f in &found {
             stats.toi_tests += f.tests;
             if let Some(imp) = f.imp {

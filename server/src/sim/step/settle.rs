@@ -9,6 +9,15 @@ use glam::DVec3;
 const SETTLE_PASSES: u32 = 16;
 
 impl Stepper {
+    /// Whether a settle pass may push candidate `k`'s pair apart: both alive, and a rule that
+    /// stops them.
+    fn pushable_pair(&self, w: &World, k: usize) -> bool {
+        let Cand { a, b: p } = self.candidates[k];
+        let alive = !self.dead[a as usize] && !matches!(p, Partner::Body(j) if self.dead[j as usize]);
+        let (ca, cb) = self.class_pair(w, a, p);
+        alive && matches!(w.config.classes.rule(ca, cb), Rule::Bounce { .. } | Rule::Slide | Rule::Stop)
+    }
+
     /// Moves every body to the end of its path, then settles what the time-of-impact resolution
     /// left overlapping: a few Gauss-Seidel passes over the tick's pairs push apart any pair deeper than the contact slop (back to half the
     /// slop, in proportion to the inverse masses) and remove its approaching normal velocity
@@ -26,25 +35,35 @@ impl Stepper {
             }
         });
         let slop = w.config.contact_slop_m;
+        // The pairs a pass can push: alive, and with a rule that stops them. Neither changes
+        // during the passes, so each candidate is asked once (a filter, cut over the pool), and
+        // the passes walk these in candidate order, as they would walk every candidate.
+        let mut pushable = std::mem::take(&mut self.pushable);
+        pushable.clear();
+        let this = &*self;
+        this.pool.extend(this.candidates.len(), MIN_PIECE, &mut pushable, |range, out| {
+            out.extend(range.filter(|&k| this.pushable_pair(w, k)).map(|k| k as u32));
+        });
+        let mut asked = self.candidates.len();
         for _ in 0..SETTLE_PASSES {
             let mut moved = false;
-            for k in 0..self.candidates.len() {
-                let Cand { a, b: p, end, end_valid } = self.candidates[k];
-                let i = a as usize;
-                if self.dead[i] || matches!(p, Partner::Body(j) if self.dead[j as usize]) {
-                    continue;
+            // Pairs found by the last pass join this one (a pass never walks what it adds).
+            for k in asked..self.candidates.len() {
+                if self.pushable_pair(w, k) {
+                    pushable.push(k as u32);
                 }
+            }
+            asked = self.candidates.len();
+            for &k in &pushable {
+                let k = k as usize;
+                let Cand { a, b: p } = self.candidates[k];
+                let i = a as usize;
                 // A pair neither of whose paths changed keeps the end contact found with its time
                 // of impact (same positions, same kernel): clear of the slop there, nothing to do.
-                let unchanged = end_valid
-                    && self.version[i] == 0
-                    && !matches!(p, Partner::Body(j) if self.version[j as usize] != 0);
-                if unchanged && end.is_none_or(|c| c.depth <= slop) {
-                    continue;
-                }
-                let (ca, cb) = self.class_pair(w, a, p);
-                if !matches!(w.config.classes.rule(ca, cb), Rule::Bounce { .. } | Rule::Slide | Rule::Stop) {
-                    continue;
+                if let Some(end) = self.end_if_unchanged(k) {
+                    if end.is_none_or(|c| c.depth <= slop) {
+                        continue;
+                    }
                 }
                 let pa = w.bodies.pos[i];
                 let (pb, inv_mb) = match p {
@@ -117,5 +136,6 @@ impl Stepper {
             pushed.clear();
             self.settled = pushed;
         }
+        self.pushable = pushable;
     }
 }
