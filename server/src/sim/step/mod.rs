@@ -226,8 +226,6 @@ pub struct Stepper {
     impacts: Vec<Impact>,
     triggers: Vec<Impact>,
     records: Vec<PairRecord>,
-    /// Triggers' records (and overlap tests spent), before they join `records`.
-    trigger_records: Vec<(Option<PairRecord>, u32)>,
     end_records: Vec<PairRecord>,
     end_order: Vec<(u64, u32)>,
     record_order: Vec<(u64, i64, u32)>,
@@ -289,7 +287,6 @@ impl Stepper {
             impacts: Vec::new(),
             triggers: Vec::new(),
             records: Vec::new(),
-            trigger_records: Vec::new(),
             end_records: Vec::new(),
             end_order: Vec::new(),
             record_order: Vec::new(),

@@ -86,28 +86,27 @@ impl Stepper {
         // Triggers: record those whose bodies kept their paths; search again those that changed.
         // Recording changes no path, so this is a map over the triggers, cut over the pool.
         let triggers = std::mem::take(&mut self.triggers);
-        let mut recorded = std::mem::take(&mut self.trigger_records);
-        recorded.clear();
+        let mut records = std::mem::take(&mut self.records);
+        // The overlap tests spent searching again: an integer sum, the same in any order.
+        let tests = std::sync::atomic::AtomicU32::new(0);
         let this = &*self;
-        this.pool.extend(triggers.len(), MIN_PIECE_HEAVY, &mut recorded, |range, out| {
+        this.pool.extend(triggers.len(), MIN_PIECE_HEAVY, &mut records, |range, out| {
             for imp in &triggers[range] {
                 if this.dead[imp.a as usize] || matches!(imp.b, Partner::Body(j) if this.dead[j as usize]) {
                     continue;
                 }
                 if this.is_current(imp) {
-                    out.push((Some(this.record(w, imp)), 0));
+                    out.push(this.record(w, imp));
                 } else {
-                    let mut tests = 0;
-                    let again = this.impact(w, imp.a, imp.b, this.search_from(imp), &mut tests);
-                    out.push((again.map(|again| this.record(w, &again)), tests));
+                    let mut spent = 0;
+                    let again = this.impact(w, imp.a, imp.b, this.search_from(imp), &mut spent);
+                    tests.fetch_add(spent, std::sync::atomic::Ordering::Relaxed);
+                    out.extend(again.map(|again| this.record(w, &again)));
                 }
             }
         });
-        for (record, tests) in recorded.drain(..) {
-            stats.toi_tests += tests;
-            self.records.extend(record);
-        }
-        self.trigger_records = recorded;
+        stats.toi_tests += tests.into_inner();
+        self.records = records;
         self.triggers = triggers;
         self.triggers.clear();
         stats.resolutions = resolutions;
