@@ -80,8 +80,16 @@ impl Pool {
     /// takes 30-60 us to wake on a virtual machine (measured here), and a tick cuts a dozen
     /// loops separated by sequential stages: on 10,000 bodies that cost more than the second
     /// thread saved.
-    pub fn run<R: Send>(&self, f: impl FnOnce() -> R + Send) -> R {
+    ///
+    /// `items` is the size of the work (a world's bodies): below [`MIN_PIECE`] its per-body
+    /// loops would not be cut, so `f` runs inline and no thread is woken (a selective rollback
+    /// re-simulates a few bodies sixteen times; waking the pool for each tick took longer than
+    /// the ticks).
+    pub fn run<R: Send>(&self, items: usize, f: impl FnOnce() -> R + Send) -> R {
         let Some(pool) = &self.pool else { return f() };
+        if items < MIN_PIECE && !self.fine {
+            return f();
+        }
         pool.install(|| {
             let me = rayon::current_thread_index();
             let done = Arc::new(AtomicBool::new(false));

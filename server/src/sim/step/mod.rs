@@ -360,7 +360,7 @@ impl Stepper {
         out: &mut TickOutput,
     ) {
         let pool = self.pool.clone();
-        pool.run(|| self.stages(w, system, inputs, out));
+        pool.run(w.bodies.len(), || self.stages(w, system, inputs, out));
     }
 
     /// The stages of [`Stepper::step_with`], on a thread of the pool.
