@@ -35,6 +35,32 @@ pub const MIN_PIECE: usize = 2 * 1024;
 /// contact record: tens of nanoseconds each).
 pub const MIN_PIECE_HEAVY: usize = 1024;
 
+/// Looks for work (about a microsecond apart) a thread kept awake by [`Pool::run`] makes in a
+/// row, finding none, before it stops keeping awake for the tick (it then sleeps as rayon's idle
+/// threads do): longer than the sequential stretches of a tick of 10,000 bodies.
+const IDLE_LOOKS: u32 = 512;
+
+thread_local! {
+    /// Set while this thread runs a tick ([`Pool::run`]'s closure) or keeps awake for one.
+    static BUSY: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Marks this thread busy until dropped (restoring what was there: ticks may nest, a rollback's
+/// re-simulation inside a tick, say).
+struct Busy(bool);
+
+impl Busy {
+    fn enter() -> Busy {
+        Busy(BUSY.replace(true))
+    }
+}
+
+impl Drop for Busy {
+    fn drop(&mut self) {
+        BUSY.set(self.0);
+    }
+}
+
 impl Pool {
     /// One thread: every loop runs inline on the caller's thread.
     pub fn sequential() -> Pool {
@@ -91,18 +117,30 @@ impl Pool {
             return f();
         }
         pool.install(|| {
-            let me = rayon::current_thread_index();
             let done = Arc::new(AtomicBool::new(false));
             let awake = done.clone();
-            rayon::spawn_broadcast(move |ctx| {
-                if Some(ctx.index()) == me {
+            rayon::spawn_broadcast(move |_| {
+                // Not on a thread that is running a tick or keeping awake already: this job
+                // would then sit on top of that work in the thread's stack and spin until its
+                // own tick ends, and that tick may be waiting for the work beneath it (a thread
+                // keeping awake for one tick can take a piece of the next before it sees its
+                // tick end, and run the next tick's job while waiting inside that piece).
+                if BUSY.get() {
                     return;
                 }
+                let _busy = Busy::enter();
                 // Look for work a microsecond or so apart (looking touches the other threads'
                 // queues, and looking constantly slowed the tick's own thread down by half),
                 // and let the operating system run another thread now and then.
+                //
+                // And give up after a stretch with nothing to do. This job may still sit on top
+                // of a piece of the tick: a thread looking for work can take a piece the moment
+                // the tick starts, before it sees this job, and run this job while waiting inside
+                // that piece. The tick then waits for the piece, nothing else is left to do, and
+                // after IDLE_LOOKS this job returns and the piece finishes: a stall, not a
+                // deadlock (`back_to_back_ticks_never_deadlock`).
                 let mut idle = 0u32;
-                while !awake.load(Ordering::Acquire) {
+                while !awake.load(Ordering::Acquire) && idle < IDLE_LOOKS {
                     if rayon::yield_now() == Some(rayon::Yield::Executed) {
                         idle = 0;
                         continue;
@@ -117,7 +155,10 @@ impl Pool {
                     }
                 }
             });
-            let r = f();
+            let r = {
+                let _busy = Busy::enter();
+                f()
+            };
             done.store(true, Ordering::Release);
             r
         })
@@ -200,6 +241,43 @@ impl Pool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Ticks back to back, each a few cut loops, never wait on each other. A thread kept awake
+    /// for one tick used to take a piece of the next tick's first loop before it saw its tick
+    /// end; waiting inside that piece it ran the next tick's keep-awake job, which spins until
+    /// that tick ends, while the tick waited for the piece beneath it: a deadlock, seen once in
+    /// CI. A watchdog turns a hang into a failure.
+    #[test]
+    fn back_to_back_ticks_never_deadlock() {
+        let done = Arc::new(AtomicBool::new(false));
+        let watch = done.clone();
+        std::thread::spawn(move || {
+            for _ in 0..600 {
+                std::thread::sleep(std::time::Duration::from_millis(100));
+                if watch.load(Ordering::Acquire) {
+                    return;
+                }
+            }
+            eprintln!("back_to_back_ticks_never_deadlock: no progress in 60 s, a deadlock");
+            std::process::exit(101);
+        });
+        const TICKS: u64 = 40_000;
+        for threads in [2, 3, 4] {
+            let pool = Pool::new(threads).unwrap().cut_finely();
+            let mut sum = 0u64;
+            for tick in 0..TICKS {
+                sum += pool.run(0, || {
+                    let mut a = Vec::new();
+                    pool.extend(64, 1, &mut a, |r, out| out.extend(r.map(|i| i as u64 * tick)));
+                    let mut b = Vec::new();
+                    pool.map_into(64, 1, &mut b, |i| a[i] + 1);
+                    b.iter().sum::<u64>()
+                });
+            }
+            assert_eq!(sum, (0..TICKS).map(|t| (0..64u64).map(|i| i * t + 1).sum::<u64>()).sum::<u64>());
+        }
+        done.store(true, Ordering::Release);
+    }
 
     /// A filter-map gives the same output inline and cut over 2, 3 and 4 threads, for lengths
     /// around every cut.
