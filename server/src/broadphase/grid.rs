@@ -15,9 +15,7 @@
 //! When the world is compact (at most [`DENSE_CELLS_PER_BODY`] cells per body) a table of where
 //! each cell's entries start replaces both the radix sort (a counting sort fills it in one pass)
 //! and the cursors (each run is two loads): the cursors walked every entry four times and their
-//! loop exits were the sweep's main cost. The table's sweep also tests the first places of every
-//! run together, without a branch (see `Grid::sweep_table`). Both paths give the same pairs, each
-//! in an order of its own that depends on the boxes alone (the broadphase sorts them).
+//! loop exits were the sweep's main cost. Both paths give the same order and the same pairs.
 
 use crate::geometry::Aabb;
 use crate::par::{Pool, MIN_PIECE, MIN_PIECE_HEAVY};
@@ -26,50 +24,6 @@ use glam::DVec3;
 /// Above this many cells per body the cell-start table would cost more than the cursors save
 /// (and would grow with the world's volume): the sorted keys and cursors serve instead.
 pub const DENSE_CELLS_PER_BODY: u64 = 32;
-
-/// A box in f32, relative to the grid's origin, laid out so that one overlap test is eight
-/// independent comparisons (two SSE compares): `[min.x, min.y, min.z, -max.x, -max.y, -max.z, 0,
-/// 0]`. Subtracting the origin and rounding to f32 are both monotone (never reverse `<=`), so two
-/// boxes that overlap in f64 overlap here; the few pairs rounding adds are removed by the exact
-/// f64 test that confirms each hit. So the pairs are exactly the f64 boxes' pairs, at half the
-/// bytes and with no branch per test.
-#[derive(Clone, Copy, Debug)]
-#[repr(align(32))]
-struct Near([f32; 8]);
-
-impl Near {
-    /// Meets nothing (NaN compares false): what a sweep slot with no box in it points at.
-    const NOTHING: Near = Near([f32::NAN, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
-
-    #[inline]
-    fn of(b: &Aabb, origin: DVec3) -> Near {
-        let (lo, hi) = ((b.min - origin).as_vec3(), (b.max - origin).as_vec3());
-        Near([lo.x, lo.y, lo.z, -hi.x, -hi.y, -hi.z, 0.0, 0.0])
-    }
-
-    /// The other side of the test for this box: `[max.x, max.y, max.z, -min.x, -min.y, -min.z,
-    /// 0, 0]`, so that `other` overlaps this box when each of its lanes is at most this one's.
-    #[inline]
-    fn query(&self) -> [f32; 8] {
-        let b = &self.0;
-        [-b[3], -b[4], -b[5], -b[0], -b[1], -b[2], 0.0, 0.0]
-    }
-
-    /// Whether this box overlaps the box whose [`Near::query`] is `q` (or may: see the type).
-    #[inline]
-    fn meets(&self, q: &[f32; 8]) -> bool {
-        let mut all = true;
-        for (a, b) in self.0.iter().zip(q) {
-            all &= a <= b;
-        }
-        all
-    }
-}
-
-/// Places a table sweep tests in every run without a branch; a run with more entries (rare:
-/// a box has about 0.2 neighbours per cell in a scene as dense as the scale benchmark's) takes a
-/// loop for the rest.
-const FIXED_PER_RUN: usize = 2;
 
 /// Grid state, carried across ticks (the sort order) and reused (the buffers).
 #[derive(Debug, Default)]
@@ -87,8 +41,6 @@ pub struct Grid {
     keys: Vec<u64>,
     /// Boxes in sorted order (for memory-order access in the sweep).
     boxes: Vec<Aabb>,
-    /// Compact worlds: the boxes in sorted order as [`Near`], then [`Near::NOTHING`].
-    near: Vec<Near>,
     /// Whether the last build succeeded (keys fit in 64 bits).
     built: bool,
     /// `key << 32 | body`, and the radix sort's scratch.
@@ -233,27 +185,21 @@ impl Grid {
             self.start[k as usize + 2] += 1;
         }
         prefix_sum(&mut self.start, pool);
-        // Each body and its key to its place (the key is at hand: one pass, not a gather after).
         self.order.clear();
         self.order.resize(aabbs.len(), 0);
-        self.keys.clear();
-        self.keys.resize(aabbs.len(), 0);
         for (i, &k) in keys.iter().enumerate() {
             let slot = &mut self.start[k as usize + 1];
             self.order[*slot as usize] = i as u32;
-            self.keys[*slot as usize] = k;
             *slot += 1;
         }
         self.start.pop();
-        self.scratch = keys; // keep the allocation
-                             // Boxes in sorted order.
+        // Keys and boxes in sorted order.
         let order = &self.order;
+        self.keys.clear();
+        pool.map_into(order.len(), MIN_PIECE, &mut self.keys, |k| keys[order[k] as usize]);
+        self.scratch = keys; // keep the allocation
         self.boxes.clear();
         pool.map_into(order.len(), MIN_PIECE, &mut self.boxes, |k| aabbs[order[k] as usize]);
-        let (boxes, origin) = (&self.boxes, self.origin);
-        self.near.clear();
-        pool.map_into(boxes.len(), MIN_PIECE, &mut self.near, |k| Near::of(&boxes[k], origin));
-        self.near.push(Near::NOTHING);
     }
 
     /// Appends every overlapping pair `(i, j)`, `i < j`, in the sweep's order: the boxes in
@@ -277,7 +223,24 @@ impl Grid {
         let runs = [row - 1, slab - row - 1, slab - 1, slab + row - 1];
         let push = |out: &mut Vec<(u32, u32)>, a: u32, b: u32| out.push((a.min(b), a.max(b)));
         if !self.start.is_empty() {
-            self.sweep_table(range, runs, out);
+            let start = &self.start;
+            let run = |out: &mut Vec<(u32, u32)>, a: &Aabb, body: u32, from: u32, to: u32| {
+                for c in from as usize..to as usize {
+                    if a.overlaps(&self.boxes[c]) {
+                        push(out, body, self.order[c]);
+                    }
+                }
+            };
+            for p in range {
+                let key = self.keys[p] as usize;
+                let (a, body) = (self.boxes[p], self.order[p]);
+                // Own cell (later entries) and the next cell of the row.
+                run(out, &a, body, p as u32 + 1, start[key + 2]);
+                for r in runs {
+                    let lo = key + r as usize;
+                    run(out, &a, body, start[lo], start[lo + 3]);
+                }
+            }
             return;
         }
         // Each run's first entry only moves forward as the sweep goes: a cursor per run, which a
@@ -313,61 +276,6 @@ impl Grid {
                         push(out, body, self.order[c]);
                     }
                     c += 1;
-                }
-            }
-        }
-    }
-
-    /// [`Grid::sweep`] with the cell-start table. A box's five runs (its own cell's later
-    /// entries and the next cell, then three cells in each of four later rows) hold about one
-    /// box between them, and whether a run ends after zero, one or two entries is a branch the
-    /// processor cannot predict: it was most of the sweep's time. So the first
-    /// [`FIXED_PER_RUN`] places of every run are tested together, without a branch (a place
-    /// past its run's end points at [`Near::NOTHING`]), as f32 [`Near`] boxes; a hit is
-    /// confirmed in f64, and only runs longer than that take a loop.
-    fn sweep_table(&self, range: std::ops::Range<usize>, runs: [u64; 4], out: &mut Vec<(u32, u32)>) {
-        const PLACES: usize = 5 * FIXED_PER_RUN;
-        let (start, near) = (&self.start, &self.near);
-        let nothing = (near.len() - 1) as u32;
-        let confirm = |out: &mut Vec<(u32, u32)>, p: usize, c: usize| {
-            if self.boxes[p].overlaps(&self.boxes[c]) {
-                let (a, b) = (self.order[p], self.order[c]);
-                out.push((a.min(b), a.max(b)));
-            }
-        };
-        for p in range {
-            let key = self.keys[p] as usize;
-            let q = near[p].query();
-            // (first, end) of each run: own cell after p and the next cell, then the rows.
-            let mut bounds = [(p as u32 + 1, start[key + 2]); 5];
-            for (b, r) in bounds[1..].iter_mut().zip(runs) {
-                let lo = key + r as usize;
-                *b = (start[lo], start[lo + 3]);
-            }
-            let mut places = [nothing; PLACES];
-            let mut long = false;
-            for (k, &(first, end)) in bounds.iter().enumerate() {
-                for j in 0..FIXED_PER_RUN as u32 {
-                    places[k * FIXED_PER_RUN + j as usize] = if first + j < end { first + j } else { nothing };
-                }
-                long |= end > first + FIXED_PER_RUN as u32;
-            }
-            let mut hits = 0u32;
-            for (k, &c) in places.iter().enumerate() {
-                hits |= u32::from(near[c as usize].meets(&q)) << k;
-            }
-            while hits != 0 {
-                let k = hits.trailing_zeros() as usize;
-                hits &= hits - 1;
-                confirm(out, p, places[k] as usize);
-            }
-            if long {
-                for &(first, end) in &bounds {
-                    for c in first as usize + FIXED_PER_RUN..end as usize {
-                        if near[c].meets(&q) {
-                            confirm(out, p, c);
-                        }
-                    }
                 }
             }
         }
@@ -422,47 +330,6 @@ impl Grid {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use proptest::prelude::*;
-
-    fn far_boxes() -> impl Strategy<Value = Vec<Aabb>> {
-        // Near-touching boxes a long way from the origin, where f32 cannot tell them apart:
-        // a corner shared exactly (closed boxes overlap), or a gap of a few f64 ulps.
-        let offset = prop_oneof![Just(0.0), Just(1.0e6), Just(-3.0e7), Just(1.0e12)];
-        (offset, proptest::collection::vec((0..6i32, 0..6i32, 0..6i32, 0..3u8, 0..4u32), 2..200)).prop_map(
-            |(offset, v)| {
-                v.into_iter()
-                    .map(|(x, y, z, size, nudge)| {
-                        let unit = 1.0e-3;
-                        let min = DVec3::new(offset + f64::from(x) * unit, f64::from(y) * unit, f64::from(z) * unit);
-                        let mut max = min + DVec3::splat(f64::from(size) * unit);
-                        // Shrink by a few ulps: now it misses a neighbour it would have touched.
-                        for _ in 0..nudge {
-                            max.x = max.x.next_down();
-                        }
-                        Aabb { min, max: max.max(min) }
-                    })
-                    .collect()
-            },
-        )
-    }
-
-    proptest! {
-        /// The f32 first test may only ever add pairs that the f64 test then removes: the table's
-        /// sweep finds exactly the brute-force pairs on boxes that touch, or miss by a few f64
-        /// ulps (which f32 cannot see), near and far from the origin.
-        #[test]
-        fn table_sweep_is_exact_far_from_the_origin(aabbs in far_boxes()) {
-            let mut want = Vec::new();
-            super::super::brute::pairs(&aabbs, &mut want);
-            want.sort_unstable();
-            let mut grid = Grid::default();
-            let mut got = Vec::new();
-            grid.pairs(&aabbs, &mut got, &Pool::sequential());
-            prop_assert!(!grid.start.is_empty(), "the table's sweep was taken");
-            got.sort_unstable();
-            prop_assert_eq!(got, want);
-        }
-    }
 
     /// A compact world takes the cell-start table, a forced grid the cursors; both find exactly
     /// the brute-force pairs, in the same order.
@@ -491,17 +358,15 @@ mod tests {
         table.pairs(&aabbs, &mut a, &Pool::sequential());
         cursors.pairs(&aabbs, &mut b, &Pool::sequential());
         assert!(!table.start.is_empty() && cursors.start.is_empty(), "each path taken");
+        assert_eq!(a, b, "same pairs in the same order");
         // Cut over threads, each path gives the pairs of one thread, in the same order.
         let pool = Pool::new(3).unwrap().cut_finely();
-        for (grid, one) in [(&mut table, &a), (&mut cursors, &b)] {
+        for grid in [&mut table, &mut cursors] {
             let mut c = Vec::new();
             grid.pairs(&aabbs, &mut c, &pool);
-            assert_eq!(one, &c, "the same order on any number of threads");
+            assert_eq!(a, c);
         }
-        // The two paths emit in their own orders (the caller sorts); the same set, each once.
-        for mut pairs in [a, b] {
-            pairs.sort_unstable();
-            assert_eq!(pairs, want);
-        }
+        a.sort_unstable();
+        assert_eq!(a, want);
     }
 }
