@@ -21,6 +21,14 @@ use crate::geometry::Aabb;
 use crate::par::{Pool, MIN_PIECE, MIN_PIECE_HEAVY};
 use glam::DVec3;
 
+/// How much larger than the largest box a cell is, as a fraction. Two overlapping boxes' lower
+/// corners are at most one box apart, and so, in cells, at most `1 / (1 + CELL_MARGIN)` apart
+/// before rounding: the few ulps that computing cell coordinates can add (far less than this
+/// margin while an axis has fewer than 2^32 cells) can never put them two cells apart. With the
+/// cell exactly the largest box, two boxes one cell apart to the last digit could round into
+/// cells two apart and their pair be missed.
+const CELL_MARGIN: f64 = 1.0 / (1u64 << 20) as f64;
+
 /// Above this many cells per body the cell-start table would cost more than the cursors save
 /// (and would grow with the world's volume): the sorted keys and cursors serve instead.
 pub const DENSE_CELLS_PER_BODY: u64 = 32;
@@ -29,6 +37,8 @@ pub const DENSE_CELLS_PER_BODY: u64 = 32;
 #[derive(Debug, Default)]
 pub struct Grid {
     cell: f64,
+    /// `1 / cell`: cell coordinates by a multiplication, not three divisions a box.
+    inv_cell: f64,
     origin: DVec3,
     /// Cells per row and per slab (rows are padded by one cell at each end, slabs by one row).
     row: u64,
@@ -88,7 +98,7 @@ impl Grid {
     /// Cell coordinates of a point (may be negative or past the grid for query points).
     #[inline]
     fn coords(&self, p: DVec3) -> [i64; 3] {
-        let q = (p - self.origin) / self.cell;
+        let q = (p - self.origin) * self.inv_cell;
         let f = |v: f64| {
             let t = v as i64;
             if (t as f64) > v {
@@ -98,6 +108,19 @@ impl Grid {
             }
         };
         [f(q.x), f(q.y), f(q.z)]
+    }
+
+    /// Key of the cell holding `min`, the lower corner of a box this grid was built from: at or
+    /// above the origin (the least corner of them all), so its cell coordinates are not negative
+    /// and truncation is the floor. The same key as `self.key(self.coords(min))`, with no
+    /// corrections for negative coordinates.
+    #[inline]
+    fn key_of_min(&self, min: DVec3) -> u64 {
+        let q = (min - self.origin) * self.inv_cell;
+        // Through i64 (one instruction each on x86-64; u64 takes a dozen), as `coords` does:
+        // below 2^63, as the build's bound on the cells keeps every coordinate.
+        let c = |v: f64| v as i64 as u64 + 1;
+        c(q.x) + self.row * c(q.y) + self.slab * c(q.z)
     }
 
     /// Key of in-grid cell coordinates (each shifted by one for the padding).
@@ -119,8 +142,9 @@ impl Grid {
             cell = cell.max(b.extents().max_element());
         }
         self.origin = origin;
-        self.cell = if cell > 0.0 { cell } else { 1.0 };
-        let span = if n == 0 { DVec3::ZERO } else { (top - origin) / self.cell };
+        self.cell = if cell > 0.0 { cell * (1.0 + CELL_MARGIN) } else { 1.0 };
+        self.inv_cell = 1.0 / self.cell;
+        let span = if n == 0 { DVec3::ZERO } else { (top - origin) * self.inv_cell };
         // Padded dimensions: one empty cell (row, slab) on each side, so x - 1 and y - 1 never
         // wrap into the previous row or slab.
         let dims = [span.x, span.y, span.z].map(|s| s.floor() + 3.0);
@@ -144,12 +168,12 @@ impl Grid {
         let mut packed = std::mem::take(&mut self.packed);
         packed.clear();
         if key_bits <= 32 {
-            packed.extend(aabbs.iter().enumerate().map(|(i, b)| self.key(self.coords(b.min)) << 32 | i as u64));
+            packed.extend(aabbs.iter().enumerate().map(|(i, b)| self.key_of_min(b.min) << 32 | i as u64));
             super::radix_sort(&mut packed, &mut self.scratch, 32, key_bits);
         } else {
             // Keys too wide to pack with an index: a comparison sort on (key, body).
             let mut wide: Vec<(u64, u32)> =
-                aabbs.iter().enumerate().map(|(i, b)| (self.key(self.coords(b.min)), i as u32)).collect();
+                aabbs.iter().enumerate().map(|(i, b)| (self.key_of_min(b.min), i as u32)).collect();
             wide.sort_unstable();
             self.keys.clear();
             self.order.clear();
@@ -180,7 +204,7 @@ impl Grid {
         self.start.resize(cells + 2, 0);
         let mut keys = std::mem::take(&mut self.scratch);
         keys.clear();
-        pool.map_into(aabbs.len(), MIN_PIECE, &mut keys, |i| self.key(self.coords(aabbs[i].min)));
+        pool.map_into(aabbs.len(), MIN_PIECE, &mut keys, |i| self.key_of_min(aabbs[i].min));
         for &k in &keys {
             self.start[k as usize + 2] += 1;
         }
@@ -330,6 +354,53 @@ impl Grid {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    /// Chains of boxes of one size, each starting exactly where the one before it ends (so
+    /// every neighbour touches, and the lower corners are exactly one box, the cell's size
+    /// before its margin, apart), at an offset near or far from the origin; and the same chain
+    /// among a crowd of other boxes on a lattice, so the table's runs have every length.
+    fn chains() -> impl Strategy<Value = Vec<Aabb>> {
+        let offset = prop_oneof![Just(0.0), -1.0e3..1.0e3f64, Just(1.0e6), Just(-3.0e7), 1.0e9..1.0e12f64];
+        let size = prop_oneof![Just(1.0), Just(0.1), 1.0e-3..10.0f64];
+        (offset, size, 2..60usize, proptest::collection::vec((0..6i32, 0..6i32, 0..6i32), 0..120)).prop_map(
+            |(offset, size, links, crowd)| {
+                let mut boxes = Vec::new();
+                let mut min = DVec3::new(offset, offset * 0.5, -offset);
+                for k in 0..links {
+                    let max = min + DVec3::splat(size);
+                    boxes.push(Aabb { min, max });
+                    // The next starts where this one ends: on x, then on y, then on z, in turn.
+                    min[k % 3] = max[k % 3];
+                }
+                let base = boxes[0].min;
+                boxes.extend(crowd.into_iter().map(|(x, y, z)| {
+                    let min = base + DVec3::new(f64::from(x), f64::from(y), f64::from(z)) * (0.5 * size);
+                    Aabb { min, max: min + DVec3::splat(size) }
+                }));
+                boxes
+            },
+        )
+    }
+
+    proptest! {
+        /// Boxes exactly one box apart are never filed two cells apart, however the cell
+        /// coordinates round: the table's sweep and the cursors both find exactly the
+        /// brute-force pairs on touching chains, near and far from the origin.
+        #[test]
+        fn touching_chains_are_found_whole(aabbs in chains()) {
+            let mut want = Vec::new();
+            super::super::brute::pairs(&aabbs, &mut want);
+            want.sort_unstable();
+            let (mut table, mut cursors) = (Grid::default(), Grid { sparse_only: true, ..Grid::default() });
+            for grid in [&mut table, &mut cursors] {
+                let mut got = Vec::new();
+                grid.pairs(&aabbs, &mut got, &Pool::sequential());
+                got.sort_unstable();
+                prop_assert_eq!(&got, &want);
+            }
+        }
+    }
 
     /// A compact world takes the cell-start table, a forced grid the cursors; both find exactly
     /// the brute-force pairs, in the same order.
