@@ -321,8 +321,11 @@ impl Grid {
         if !self.built || self.keys.len() != aabbs.len() || self.keys.is_empty() {
             return super::brute::query(aabbs, query, out);
         }
-        // Cells outside the padded grid hold nothing; clamping keeps keys from wrapping.
-        let lo = self.coords(query.min - DVec3::splat(self.cell));
+        // A box that reaches the query starts at most one cell below the query's own lower
+        // corner (in cell coordinates, where the margin absorbs rounding; subtracting a cell
+        // from a corner far from the origin would round by more than the margin). Cells outside
+        // the padded grid hold nothing; clamping keeps keys from wrapping.
+        let lo = self.coords(query.min).map(|c| c.saturating_sub(1));
         let hi = self.coords(query.max);
         let lo: [i64; 3] = std::array::from_fn(|k| lo[k].clamp(-1, self.dims[k] - 2));
         let hi: [i64; 3] = std::array::from_fn(|k| hi[k].clamp(-1, self.dims[k] - 2));
@@ -386,7 +389,8 @@ mod tests {
     proptest! {
         /// Boxes exactly one box apart are never filed two cells apart, however the cell
         /// coordinates round: the table's sweep and the cursors both find exactly the
-        /// brute-force pairs on touching chains, near and far from the origin.
+        /// brute-force pairs on touching chains, near and far from the origin, and a query
+        /// with any of the boxes finds exactly the boxes it touches.
         #[test]
         fn touching_chains_are_found_whole(aabbs in chains()) {
             let mut want = Vec::new();
@@ -398,6 +402,14 @@ mod tests {
                 grid.pairs(&aabbs, &mut got, &Pool::sequential());
                 got.sort_unstable();
                 prop_assert_eq!(&got, &want);
+                // Queries with each box find what brute force finds (its touching neighbours).
+                for q in aabbs.iter().take(24) {
+                    let (mut hits, mut truth) = (Vec::new(), Vec::new());
+                    grid.query(&aabbs, q, &mut hits);
+                    hits.sort_unstable();
+                    super::super::brute::query(&aabbs, q, &mut truth);
+                    prop_assert_eq!(&hits, &truth);
+                }
             }
         }
     }
