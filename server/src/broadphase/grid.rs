@@ -1,6 +1,6 @@
-//! A uniform grid, as sorted cell keys. The cell is as large as the largest box, and each box is
-//! filed under the cell of its lower corner, so two overlapping boxes sit in the same or
-//! adjacent cells. Cells are numbered row by row (`x` fastest), and the boxes are kept sorted by
+//! A uniform grid, as sorted cell keys. The cell is as large as the largest box (and a hair
+//! larger: [`CELL_MARGIN`]), and each box is filed under the cell of its lower corner, so two
+//! overlapping boxes sit in the same or adjacent cells. Cells are numbered row by row (`x` fastest), and the boxes are kept sorted by
 //! cell number with a radix sort, O(n) whatever the motion. (An insertion sort from the previous
 //! tick's order was tried: a body changing cell along z moves a whole slab of entries, which
 //! grows as n^(2/3).)
@@ -117,7 +117,7 @@ impl Grid {
     #[inline]
     fn key_of_min(&self, min: DVec3) -> u64 {
         let q = (min - self.origin) * self.inv_cell;
-        // Through i64 (one instruction each on x86-64; u64 takes a dozen), as `coords` does:
+        // Through i64 (a few instructions each on x86-64; u64 takes a dozen), as `coords` does:
         // below 2^63, as the build's bound on the cells keeps every coordinate.
         let c = |v: f64| v as i64 as u64 + 1;
         c(q.x) + self.row * c(q.y) + self.slab * c(q.z)
