@@ -45,6 +45,12 @@ pub enum Rule {
 }
 
 impl Rule {
+    /// Whether the rule stops the two bodies in each other, so that what is left overlapping is
+    /// pushed apart at the end of the tick.
+    pub fn stops(self) -> bool {
+        matches!(self, Rule::Bounce { .. } | Rule::Slide | Rule::Stop)
+    }
+
     /// The same rule seen from the other body's side.
     pub fn swapped(self) -> Rule {
         match self {
@@ -97,6 +103,13 @@ impl Classes {
     #[inline]
     pub fn rule(&self, a: ClassId, b: ClassId) -> Rule {
         self.rules[a.0 as usize * self.props.len() + b.0 as usize]
+    }
+
+    /// Whether some pair of classes has a rule that stops bodies in each other ([`Rule::Bounce`],
+    /// [`Rule::Slide`], [`Rule::Stop`]): the only pairs the settle passes push apart. A world of
+    /// triggers, say, has none, and its tick skips asking every pair.
+    pub fn any_stopping(&self) -> bool {
+        self.rules.iter().any(|r| r.stops())
     }
 
     /// Looks a class up by name.
@@ -564,6 +577,29 @@ impl Default for StateHasher {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    /// A table of triggers (and ignored or destroying pairs) has no stopping rule, so the settle
+    /// stage skips it; one bouncing, sliding or stopping pair anywhere in the table is found.
+    #[test]
+    fn any_stopping_finds_one_stopping_pair() {
+        let class = |name: &str| ClassProps {
+            name: name.into(),
+            is_static: false,
+            max_speed_mps: 10.0,
+            gravity: false,
+            density_kg_m3: 1000.0,
+            can_sleep: true,
+        };
+        let mut table = Classes::new(vec![class("ball"), class("wall"), class("brick")], Rule::Trigger);
+        table.set_rule(ClassId(0), ClassId(1), Rule::Ignore);
+        table.set_rule(ClassId(0), ClassId(2), Rule::Destroy { first: false, second: true, restitution: None });
+        assert!(!table.any_stopping());
+        for rule in [Rule::Bounce { restitution: 0.5 }, Rule::Slide, Rule::Stop] {
+            let mut t = table.clone();
+            t.set_rule(ClassId(2), ClassId(1), rule);
+            assert!(t.any_stopping(), "{rule:?}");
+        }
+    }
 
     proptest! {
         /// The cursor search answers what the binary search answers, whatever order the ids

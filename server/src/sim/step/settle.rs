@@ -2,7 +2,7 @@
 
 use super::{Cand, Partner, Stepper};
 use crate::par::MIN_PIECE;
-use crate::sim::world::{Rule, World};
+use crate::sim::world::World;
 use glam::DVec3;
 
 /// Gauss-Seidel passes of the end-of-tick settle.
@@ -15,7 +15,7 @@ impl Stepper {
         let Cand { a, b: p } = self.candidates[k];
         let alive = !self.dead[a as usize] && !matches!(p, Partner::Body(j) if self.dead[j as usize]);
         let (ca, cb) = self.class_pair(w, a, p);
-        alive && matches!(w.config.classes.rule(ca, cb), Rule::Bounce { .. } | Rule::Slide | Rule::Stop)
+        alive && w.config.classes.rule(ca, cb).stops()
     }
 
     /// Moves every body to the end of its path, then settles what the time-of-impact resolution
@@ -34,6 +34,12 @@ impl Stepper {
                 *p = base[i] + vel[i] * ((1.0 - t0[i]) * dt);
             }
         });
+        if !w.config.classes.any_stopping() {
+            // No rule pushes anything (a world of triggers): no pair is pushable, and no pass
+            // would move a body or find a new pair.
+            self.pushable.clear();
+            return;
+        }
         let slop = w.config.contact_slop_m;
         // The pairs a pass can push: alive, and with a rule that stops them. Neither changes
         // during the passes, so each candidate is asked once (a filter, cut over the pool), and
