@@ -1,9 +1,9 @@
-//! A uniform grid, as sorted cell keys. The cell is as large as the largest box (and a hair
-//! larger: `CELL_MARGIN`), and each box is filed under the cell of its lower corner, so two
-//! overlapping boxes sit in the same or adjacent cells. Cells are numbered row by row (`x` fastest), and the boxes are kept sorted by
-//! cell number with a radix sort, O(n) whatever the motion. (An insertion sort from the previous
-//! tick's order was tried: a body changing cell along z moves a whole slab of entries, which
-//! grows as n^(2/3).)
+//! A uniform grid, as sorted cell keys. The cell is as large as the largest box (and a hair larger:
+//! `CELL_MARGIN`), and each box is filed under the cell of its lower corner, so two overlapping
+//! boxes sit in the same or adjacent cells. Cells are numbered row by row (`x` fastest), and the
+//! boxes are kept sorted by cell number with a radix sort, O(n) whatever the motion. (An insertion
+//! sort from the previous tick's order was tried: a body changing cell along z moves a whole slab
+//! of entries, which grows as n^(2/3).)
 //!
 //! Each cell is compared with itself and the 13 of its 26 neighbours that come after it, so each
 //! pair of cells is visited once. Those 13 lie in five runs of consecutive cell numbers: the rest
