@@ -36,8 +36,7 @@ pub const DENSE_CELLS_PER_BODY: u64 = 32;
 /// Grid state, carried across ticks (the sort order) and reused (the buffers).
 #[derive(Debug, Default)]
 pub struct Grid {
-    cell: f64,
-    /// `1 / cell`: cell coordinates by a multiplication, not three divisions a box.
+    /// One over the cell's size: cell coordinates by a multiplication, not three divisions a box.
     inv_cell: f64,
     origin: DVec3,
     /// Cells per row and per slab (rows are padded by one cell at each end, slabs by one row).
@@ -142,8 +141,8 @@ impl Grid {
             cell = cell.max(b.extents().max_element());
         }
         self.origin = origin;
-        self.cell = if cell > 0.0 { cell * (1.0 + CELL_MARGIN) } else { 1.0 };
-        self.inv_cell = 1.0 / self.cell;
+        let cell = if cell > 0.0 { cell * (1.0 + CELL_MARGIN) } else { 1.0 };
+        self.inv_cell = 1.0 / cell;
         let span = if n == 0 { DVec3::ZERO } else { (top - origin) * self.inv_cell };
         // Padded dimensions: one empty cell (row, slab) on each side, so x - 1 and y - 1 never
         // wrap into the previous row or slab.
