@@ -1,7 +1,8 @@
-//! What a client can do to the world ([`Action`], with the shapes it may spawn) and where a ray
-//! hit ([`RayHit`]): the vocabulary both the messages and the input log are made of.
+//! What a client can do to the world ([`Action`]) and where a ray hit ([`RayHit`]): the
+//! vocabulary both the messages and the input log are made of.
 
 use crate::ids::EntityId;
+use crate::shape::ShapeSpec;
 use serde::{Deserialize, Serialize};
 
 /// One thing a client can do to the world. Velocities in m/s, positions in metres, world frame.
@@ -24,7 +25,7 @@ pub enum Action {
     },
     /// Spawn a projectile owned by the client.
     SpawnProjectile {
-        /// Its shape.
+        /// Its shape: a sphere, a capsule or a cuboid ([`ShapeSpec::spawnable`]).
         shape: ShapeSpec,
         /// Centre at the input's tick, metres.
         position: [f64; 3],
@@ -48,29 +49,6 @@ pub enum Action {
     Despawn {
         /// The owned entity.
         entity: EntityId,
-    },
-}
-
-/// A shape a client may spawn. Dimensions in metres, all `> 0`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case")]
-pub enum ShapeSpec {
-    /// A sphere.
-    Sphere {
-        /// Radius, metres.
-        radius_m: f64,
-    },
-    /// A capsule along the local y axis.
-    Capsule {
-        /// Half the length of the segment between the two cap centres, metres.
-        half_height_m: f64,
-        /// Radius, metres.
-        radius_m: f64,
-    },
-    /// An axis-aligned box (at spawn).
-    Cuboid {
-        /// Half extents along x, y, z, metres.
-        half_extents_m: [f64; 3],
     },
 }
 

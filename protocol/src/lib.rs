@@ -6,10 +6,14 @@
 //! - [`message`]: one enum per direction, [`ClientMessage`] and [`ServerMessage`].
 //! - [`action`]: what a client can do ([`Action`]) and where a ray hit ([`RayHit`]).
 //! - [`event`]: the [`CollisionEvent`] the server publishes.
+//! - [`shape`]: [`ShapeSpec`], a collision shape as data: scene files, spawns and checkpoints.
+//! - [`state`]: the state streams' frames ([`StateFrame`]) for drawing and interpolation.
 //! - [`keys`]: every Zenoh key expression, built in one place under `impact/v1/{world}`.
 //! - [`codec`]: [`encode`] and [`decode`], MessagePack by default, JSON on request.
 //! - [`limits`]: the hard bounds every decoded message is checked against.
 //! - [`log`]: the input log a standby follows and a recording replays.
+//! - [`validate`]: the value checks every decoded message passes ([`Validate`]).
+//! - [`error`]: [`ProtocolError`], why a payload was refused.
 //!
 //! `PROTOCOL.md` at the repository root documents all of it for a client in another language.
 
@@ -22,6 +26,7 @@ pub mod keys;
 pub mod limits;
 pub mod log;
 pub mod message;
+pub mod shape;
 pub mod state;
 pub mod validate;
 

@@ -14,6 +14,7 @@
 
 use crate::action::{Action, RayHit};
 use crate::ids::{ClientId, EntityId, Tick};
+use crate::shape::ShapeSpec;
 use serde::{Deserialize, Serialize};
 
 /// One input as the server applied it.
@@ -91,39 +92,6 @@ pub struct Admitted {
     pub inputs: Vec<LoggedInput>,
 }
 
-/// A shape in a checkpoint: every shape a dynamic body can have.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case")]
-pub enum CheckpointShape {
-    /// A sphere.
-    Sphere {
-        /// Radius, m.
-        radius: f64,
-    },
-    /// A capsule along local y.
-    Capsule {
-        /// Half the segment, m.
-        half_height: f64,
-        /// Radius, m.
-        radius: f64,
-    },
-    /// A box.
-    Cuboid {
-        /// Half extents, m.
-        half_extents: [f64; 3],
-    },
-    /// An ellipsoid.
-    Ellipsoid {
-        /// Semi-axes, m.
-        radii: [f64; 3],
-    },
-    /// A convex hull, by its points.
-    Convex {
-        /// Points, local frame, m.
-        points: Vec<[f64; 3]>,
-    },
-}
-
 /// A dynamic body, complete.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CheckpointBody {
@@ -132,7 +100,7 @@ pub struct CheckpointBody {
     /// Class index in the scene's class table.
     pub class: u16,
     /// Shape.
-    pub shape: CheckpointShape,
+    pub shape: ShapeSpec,
     /// Centre, m.
     pub position: [f64; 3],
     /// Velocity, m/s.

@@ -5,9 +5,10 @@
 //! whose `"type"` entry names the variant (`{"type": "input", ...}`), which any MessagePack or
 //! JSON library can build and read without knowing Rust's enum layout.
 
-pub use crate::action::{Action, RayHit, ShapeSpec};
+pub use crate::action::{Action, RayHit};
 use crate::event::CollisionEvent;
 use crate::ids::{ClientId, EntityId, Tick};
+pub use crate::shape::ShapeSpec;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 

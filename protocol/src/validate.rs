@@ -73,18 +73,28 @@ impl Validate for ShapeSpec {
 
 impl ShapeSpec {
     fn validate_at(&self, path: &dyn Fn() -> String) -> Result<(), ProtocolError> {
+        let dims = |dims: &[f64], name: &str| {
+            dims.iter()
+                .enumerate()
+                .try_for_each(|(i, h)| positive(*h, MAX_SHAPE_DIM_M, || format!("{}.{name}[{i}]", path())))
+        };
+        let points = |points: &[[f64; 3]], name: &str| {
+            let far = "distance from the centre (m)";
+            points
+                .iter()
+                .enumerate()
+                .try_for_each(|(i, p)| vec3(p, MAX_SHAPE_DIM_M, far, || format!("{}.{name}[{i}]", path())))
+        };
         match self {
             ShapeSpec::Sphere { radius_m } => positive(*radius_m, MAX_SHAPE_DIM_M, || format!("{}.radius_m", path())),
             ShapeSpec::Capsule { half_height_m, radius_m } => {
                 positive(*radius_m, MAX_SHAPE_DIM_M, || format!("{}.radius_m", path()))?;
                 positive(*half_height_m, MAX_SHAPE_DIM_M, || format!("{}.half_height_m", path()))
             }
-            ShapeSpec::Cuboid { half_extents_m } => {
-                for (i, h) in half_extents_m.iter().enumerate() {
-                    positive(*h, MAX_SHAPE_DIM_M, || format!("{}.half_extents_m[{i}]", path()))?;
-                }
-                Ok(())
-            }
+            ShapeSpec::Cuboid { half_extents_m } => dims(half_extents_m, "half_extents_m"),
+            ShapeSpec::Ellipsoid { radii_m } => dims(radii_m, "radii_m"),
+            ShapeSpec::Convex { points: p } => points(p, "points"),
+            ShapeSpec::Mesh { vertices, .. } => points(vertices, "vertices"),
         }
     }
 }
@@ -102,6 +112,12 @@ impl Action {
             Action::SetVelocity { velocity, .. } => vec3(velocity, MAX_SPEED_MPS, "speed (m/s)", || field("velocity")),
             Action::ApplyImpulse { impulse, .. } => vec3(impulse, MAX_IMPULSE_NS, "impulse (N*s)", || field("impulse")),
             Action::SpawnProjectile { shape, position, velocity } => {
+                if !shape.spawnable() {
+                    return Err(ProtocolError::OutOfRange {
+                        field: field("shape"),
+                        detail: "a client spawns a sphere, a capsule or a cuboid".into(),
+                    });
+                }
                 shape.validate_at(&|| field("shape"))?;
                 coord3(position, || field("position"))?;
                 vec3(velocity, MAX_SPEED_MPS, "speed (m/s)", || field("velocity"))

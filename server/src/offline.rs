@@ -2,8 +2,8 @@
 //! a game team checks a scene in its own CI and how a bug is reproduced: the same scene and the
 //! same input file give the same events and the same final state hash, bit for bit.
 
-use crate::scene::Scene;
-use crate::sim::{Plan, Pool, Stepper, TickInput, TickOutput, World};
+use impact_core::scene::Scene;
+use impact_core::sim::{Plan, Pool, Stepper, TickInput, TickOutput, World};
 use impact_protocol::limits::MAX_CLIENT_MESSAGE_BYTES;
 use impact_protocol::{ClientMessage, CollisionEvent, Encoding, Phase, Response};
 use std::collections::BTreeMap;
@@ -73,7 +73,7 @@ pub struct OfflineReport {
     /// Final state hash.
     pub state_hash: u64,
     /// Time per stage and counters.
-    pub stages: crate::sim::StageStats,
+    pub stages: impact_core::sim::StageStats,
     /// The plan used.
     pub plan: Plan,
     /// Wall time of the stepping loop.
@@ -122,7 +122,7 @@ pub fn run(
                 rewound = list.clone();
                 let oldest = past.front().map_or(tick, |w| w.tick);
                 let max_rewind = world.config.max_rewind_ticks;
-                crate::rollback::rewind::rewind_rays(tick, &mut rewound, max_rewind, oldest, &world, |t| {
+                crate::rollback::hitscan::rewind_rays(tick, &mut rewound, max_rewind, oldest, &world, |t| {
                     past.get(t.0.checked_sub(oldest.0)? as usize)
                 });
                 &rewound

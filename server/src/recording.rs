@@ -7,9 +7,9 @@
 
 use crate::rollback::log::ConfirmedTick;
 use crate::rollback::{RollbackConfig, Session};
-use crate::scene::Scene;
-use crate::sim::world::window_ticks;
-use crate::sim::Plan;
+use impact_core::scene::Scene;
+use impact_core::sim::world::window_ticks;
+use impact_core::sim::Plan;
 use impact_protocol::{LogTick, Tick};
 use serde::{Deserialize, Serialize};
 use std::io::{BufRead, BufWriter, Write};
@@ -142,7 +142,7 @@ impl std::fmt::Display for ReplayReport {
 pub fn replay(
     scene: &Scene,
     path: &Path,
-    pool: &crate::par::Pool,
+    pool: &impact_core::par::Pool,
     mut progress: impl FnMut(u64),
 ) -> Result<ReplayReport, String> {
     let file = path.display().to_string();

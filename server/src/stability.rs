@@ -4,10 +4,10 @@
 //! position, velocity or event field is NaN or infinite.
 
 use crate::rollback::{RollbackConfig, Session};
-use crate::scene::Scene;
-use crate::sim::{Plan, Stepper, TickOutput, World};
 use crate::trials::{self, Kind, Method, Setup};
 use glam::DVec3;
+use impact_core::scene::Scene;
+use impact_core::sim::{Plan, Stepper, TickOutput, World};
 use impact_protocol::{Action, ClientId, ClientInput, EntityId, Tick};
 
 /// One case's outcome.
@@ -138,9 +138,9 @@ fn two_spheres(a: (DVec3, DVec3, f64), b: (DVec3, DVec3, f64)) -> World {
     let mut w = Scene::parse(text, "<pair>").expect("valid").world;
     let class = w.config.classes.by_name("ball").expect("ball");
     for (p, v, r) in [a, b] {
-        let body = crate::sim::world::NewBody {
+        let body = impact_core::sim::world::NewBody {
             class,
-            shape: crate::geometry::Shape::Sphere { radius: r },
+            shape: impact_core::geometry::Shape::Sphere { radius: r },
             pos: p,
             vel: v,
             rot: glam::DQuat::IDENTITY,
@@ -260,7 +260,7 @@ pub fn pile(n: u32, ticks: u32) -> CaseResult {
     let (mut worst_pen, mut worst_speed, mut finite, mut left) = (0.0f64, 0.0f64, true, 0u32);
     let (mut worst_wall, mut worst_pair, mut worst_tick) = (0.0f64, 0.0f64, 0u32);
     let mut pairs = Vec::new();
-    let mut grid = crate::broadphase::Broadphase::new(crate::broadphase::BroadphaseKind::Grid);
+    let mut grid = impact_core::broadphase::Broadphase::new(impact_core::broadphase::BroadphaseKind::Grid);
     for k in 0..ticks {
         st.step(&mut w, &[], &mut out);
         finite &= trials::finite(&w, &out.events);
@@ -280,12 +280,12 @@ pub fn pile(n: u32, ticks: u32) -> CaseResult {
             }
         }
         if k % 10 == 9 || k + 1 == ticks {
-            let boxes: Vec<crate::geometry::Aabb> = b
+            let boxes: Vec<impact_core::geometry::Aabb> = b
                 .pos
                 .iter()
-                .map(|p| crate::geometry::Aabb { min: *p - DVec3::splat(radius), max: *p + DVec3::splat(radius) })
+                .map(|p| impact_core::geometry::Aabb { min: *p - DVec3::splat(radius), max: *p + DVec3::splat(radius) })
                 .collect();
-            grid.pairs(&boxes, &mut pairs, &crate::par::Pool::sequential());
+            grid.pairs(&boxes, &mut pairs, &impact_core::par::Pool::sequential());
             for &(i, j) in &pairs {
                 let pen = 2.0 * radius - (b.pos[i as usize] - b.pos[j as usize]).length();
                 if pen > worst_pair {

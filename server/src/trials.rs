@@ -7,11 +7,11 @@
 //! cost of the method at that scale. Used by `impact-bench accuracy` and `impact-bench
 //! stability`, and by the stability tests.
 
-use crate::scene::random::SplitMix64;
-use crate::scene::Scene;
-use crate::sim::{Plan, Stepper, TickOutput, World};
-use crate::toi::bisect::BisectConfig;
 use glam::{DQuat, DVec3};
+use impact_core::scene::random::SplitMix64;
+use impact_core::scene::Scene;
+use impact_core::sim::{Plan, Stepper, TickOutput, World};
+use impact_core::toi::bisect::BisectConfig;
 use impact_protocol::{EntityId, Phase};
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -313,9 +313,9 @@ pub fn build(s: &Setup) -> TrialSet {
     let ball = scene.world.config.classes.by_name("ball").expect("ball class");
     let mut ids = Vec::new();
     for (p, v, r) in &bodies {
-        let body = crate::sim::world::NewBody {
+        let body = impact_core::sim::world::NewBody {
             class: ball,
-            shape: crate::geometry::Shape::Sphere { radius: *r },
+            shape: impact_core::geometry::Shape::Sphere { radius: *r },
             pos: *p,
             vel: *v,
             rot: DQuat::IDENTITY,

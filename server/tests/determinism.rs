@@ -4,10 +4,10 @@
 //! meant to alter results, run `cargo test -p impact-server --test determinism -- --nocapture`,
 //! check the new behaviour, and update the hashes with the reason in the commit.
 
+use impact_core::broadphase::BroadphaseKind;
+use impact_core::scene::Scene;
+use impact_core::sim::{Plan, Stepper, TickInput, TickOutput, World};
 use impact_protocol::{Action, ClientId, CollisionEvent, EntityId};
-use impact_server::broadphase::BroadphaseKind;
-use impact_server::scene::Scene;
-use impact_server::sim::{Plan, Stepper, TickInput, TickOutput, World};
 
 fn run(
     scene: &Scene,

@@ -3,12 +3,12 @@
 //! the complete state (and a different scene is refused); a recording replays to every hash,
 //! and a tampered one is caught at the tick that changed.
 
+use impact_core::scene::Scene;
+use impact_core::sim::{Plan, Pool};
 use impact_protocol::{Action, ClientId, ClientInput, EntityId, LogTick, Tick};
 use impact_server::recording::{self, Recorder};
 use impact_server::rollback::log::ConfirmedTick;
 use impact_server::rollback::{RollbackConfig, Session};
-use impact_server::scene::Scene;
-use impact_server::sim::{Plan, Pool};
 
 mod common;
 use common::{bat_input as bat, range};

@@ -7,10 +7,10 @@
 //! run with sleeping disabled; a rollback across a sleep or a wake reproduces the on-time run
 //! bit for bit; selective re-simulation equals the full one with sleepers in the world.
 
+use impact_core::scene::Scene;
+use impact_core::sim::{Plan, Stepper, TickOutput, World};
 use impact_protocol::{Action, ClientId, ClientInput, CollisionEvent, EntityId, Phase, Tick};
 use impact_server::rollback::{RollbackConfig, Session};
-use impact_server::scene::Scene;
-use impact_server::sim::{Plan, Stepper, TickOutput, World};
 
 /// A floor, a stack of three boxes, a sphere and a capsule standing on it, a row of three
 /// boxes side by side, and a ball (no gravity) that reaches the row at about tick 130. With

@@ -4,12 +4,12 @@
 //! confirmed stream; hitscan is judged at the shooter's tick; memory stays fixed over a long run;
 //! and the self-check catches a planted non-determinism.
 
+use impact_core::scene::Scene;
+use impact_core::sim::{Plan, Pool, TickInput};
 use impact_protocol::{
     Action, ClientId, ClientInput, CollisionEvent, EntityId, EventBatch, EventKey, Phase, RejectReason, Tick,
 };
 use impact_server::rollback::{RollbackConfig, Session, StalePolicy};
-use impact_server::scene::Scene;
-use impact_server::sim::{Plan, Pool, TickInput};
 use std::collections::BTreeMap;
 
 mod common;

@@ -5,9 +5,9 @@
 //! slide that stops or penetrates, a silent destroy).
 
 use glam::DVec3;
+use impact_core::scene::Scene;
+use impact_core::sim::{Plan, Stepper, TickOutput, World};
 use impact_protocol::{CollisionEvent, Phase, Response};
-use impact_server::scene::Scene;
-use impact_server::sim::{Plan, Stepper, TickOutput, World};
 use std::collections::BTreeSet;
 
 fn stepper(w: &World) -> Stepper {
@@ -148,7 +148,7 @@ fn corridor_players_slide_along_walls_without_entering_them() {
         for i in 0..w.bodies.len() {
             for k in 0..walls.id.len() {
                 let d = walls.pos[k] - w.bodies.pos[i];
-                if let Some(c) = impact_server::narrow::contact(
+                if let Some(c) = impact_core::narrow::contact(
                     &w.bodies.shape[i],
                     w.bodies.rot[i],
                     &walls.shape[k],
@@ -227,7 +227,7 @@ fn corridor_script_fires_rays_that_hit_and_destroy() {
     let report = impact_server::offline::run(
         &s,
         Plan::for_world(&s.world),
-        &impact_server::sim::Pool::sequential(),
+        &impact_core::sim::Pool::sequential(),
         320,
         &inputs,
         |e| {

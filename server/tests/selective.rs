@@ -3,10 +3,10 @@
 //! that re-simulates everything publishes (events, corrections, confirmations, state hashes),
 //! tick after tick. The run must also take the selective path often, or it proves nothing.
 
+use impact_core::scene::Scene;
+use impact_core::sim::Plan;
 use impact_protocol::{Action, ClientId, ClientInput, EntityId, Tick};
 use impact_server::rollback::{RollbackConfig, Session};
-use impact_server::scene::Scene;
-use impact_server::sim::Plan;
 use proptest::prelude::*;
 
 fn scene(seed: u64, balls: u32, owned: u32, gravity: bool) -> Scene {

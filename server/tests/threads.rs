@@ -6,11 +6,11 @@
 //! runs on an ordinary pool, whose thresholds it crosses. `.ci/run` also compares
 //! `impact-server --offline --threads 1` against `--threads 2` on every bundled scene.
 
+use impact_core::scene::Scene;
+use impact_core::sim::{Plan, Pool, Stepper, TickOutput};
 use impact_protocol::{ClientId, CollisionEvent};
 use impact_server::offline::{self, InputScript};
 use impact_server::rollback::{RollbackConfig, Session};
-use impact_server::scene::Scene;
-use impact_server::sim::{Plan, Pool, Stepper, TickOutput};
 
 const SCENES: [&str; 8] = ["arena", "breakout", "bullets", "corridor", "pile", "standing", "terrain", "yard"];
 

@@ -73,7 +73,7 @@ fn through(router: &str) -> zenoh::Session {
 fn server(name: &str, scenes: &[&str], router: &str, extra: &[&str]) -> Proc {
     let mut cmd = Command::new(server_binary());
     for s in scenes {
-        cmd.arg("--scene").arg(impact_server::scene::Scene::bundled_path(s));
+        cmd.arg("--scene").arg(impact_core::scene::Scene::bundled_path(s));
     }
     cmd.args(["--listen", &endpoint(), "--connect", router]).args(extra);
     Proc::spawn(name, cmd)
@@ -363,7 +363,7 @@ fn a_standby_takes_over_from_a_killed_primary() {
     // The primary's recording (up to its death) replays to every hash it recorded.
     let replay = Command::new(server_binary())
         .arg("--scene")
-        .arg(impact_server::scene::Scene::bundled_path("arena"))
+        .arg(impact_core::scene::Scene::bundled_path("arena"))
         .args(["--offline", "--replay", &record_arg])
         .output()
         .expect("replay");
@@ -446,7 +446,7 @@ fn router_server_and_clients_in_separate_network_namespaces() {
     let _router = Proc::spawn("netns-router", router);
     std::thread::sleep(Duration::from_millis(500));
     let mut cmd = inside(&s, &server_binary());
-    cmd.arg("--scene").arg(impact_server::scene::Scene::bundled_path("arena"));
+    cmd.arg("--scene").arg(impact_core::scene::Scene::bundled_path("arena"));
     cmd.args(["--listen", "tcp/10.77.1.2:7450", "--connect", "tcp/10.77.1.1:7447", "--quiet"]);
     let mut server = Proc::spawn("netns-server", cmd);
     assert!(server.wait_for_output("listening on", Duration::from_secs(20)), "{}", server.output());

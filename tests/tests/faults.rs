@@ -32,7 +32,7 @@ fn run(seed: u64) -> Result<String, String> {
     let port = common::free_port();
     let endpoint = format!("tcp/127.0.0.1:{port}");
     let mut cmd = Command::new(server_binary());
-    cmd.args(["--scene", &impact_server::scene::Scene::bundled_path("arena").to_string_lossy()])
+    cmd.args(["--scene", &impact_core::scene::Scene::bundled_path("arena").to_string_lossy()])
         .args(["--listen", &endpoint, "--quiet"]);
     let mut server = Proc::spawn(&format!("fault-{seed}-{port}"), cmd);
     let pid = server.pid();

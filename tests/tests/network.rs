@@ -7,10 +7,10 @@
 mod common;
 
 use common::*;
+use impact_core::scene::Scene;
 use impact_protocol::{
     Action, ClientId, ClientInput, Encoding, EntityId, Phase, RejectReason, ServerMessage, Tick, WorldId,
 };
-use impact_server::scene::Scene;
 use std::time::{Duration, Instant};
 use zenoh::Wait;
 

@@ -6,9 +6,9 @@
 mod common;
 
 use common::*;
+use impact_core::scene::Scene;
 use impact_protocol::{keys, Action, ClientId, ClientInput, Encoding, EntityId, ServerMessage, Tick, WorldId};
 use impact_server::runtime::auth::Users;
-use impact_server::scene::Scene;
 use std::time::Duration;
 
 const USERS: &str = r#"

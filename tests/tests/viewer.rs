@@ -23,7 +23,7 @@ use std::time::Duration;
 fn start_server(name: &str, extra: &[&str]) -> (Proc, String) {
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
     let mut cmd = Command::new(server_binary());
-    cmd.arg("--scene").arg(impact_server::scene::Scene::bundled_path("arena"));
+    cmd.arg("--scene").arg(impact_core::scene::Scene::bundled_path("arena"));
     cmd.args(["--listen", &endpoint, "--quiet"]).args(extra);
     let server = Proc::spawn(name, cmd);
     assert!(server.wait_for_output("listening on", Duration::from_secs(30)), "{}", server.output());

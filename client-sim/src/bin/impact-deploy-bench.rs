@@ -106,7 +106,7 @@ fn progress(msg: &str) {
 /// The arena server on `listen`, connected to `connect` if given.
 fn server(name: &str, listen: &str, connect: Option<&str>, extra: &[&str]) -> Result<Proc> {
     let mut cmd = Command::new(binary("impact-server"));
-    cmd.arg("--scene").arg(impact_server::scene::Scene::bundled_path("arena")).args(["--listen", listen]);
+    cmd.arg("--scene").arg(impact_core::scene::Scene::bundled_path("arena")).args(["--listen", listen]);
     if let Some(c) = connect {
         cmd.args(["--connect", c]);
     }
@@ -268,7 +268,7 @@ fn mesh(clients: u32, worlds: u32, balls: u32, seconds: u64) -> Result<()> {
     let router2 = router_proc("mesh-r2", &r2, std::slice::from_ref(&r1));
     let routers = [&r1, &r2];
     // The matches: the arena with its name and ball count changed.
-    let arena = std::fs::read_to_string(impact_server::scene::Scene::bundled_path("arena"))?;
+    let arena = std::fs::read_to_string(impact_core::scene::Scene::bundled_path("arena"))?;
     let dir = std::env::temp_dir().join(format!("impact-mesh-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     let mut files = [Vec::new(), Vec::new()];
@@ -461,7 +461,7 @@ fn replay(clients: u32, seconds: u64) -> Result<()> {
     let t0 = Instant::now();
     let out = Command::new(binary("impact-server"))
         .arg("--scene")
-        .arg(impact_server::scene::Scene::bundled_path("arena"))
+        .arg(impact_core::scene::Scene::bundled_path("arena"))
         .args(["--offline", "--replay", &rec])
         .output()?;
     let secs = t0.elapsed().as_secs_f64();

@@ -123,7 +123,7 @@ fn main() -> Result<()> {
         }
         let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
         let endpoint = format!("tcp/127.0.0.1:{port}");
-        let scene = impact_server::scene::Scene::load(&impact_server::scene::Scene::bundled_path("arena"))
+        let scene = impact_core::scene::Scene::load(&impact_core::scene::Scene::bundled_path("arena"))
             .map_err(anyhow::Error::msg)?;
         eprintln!(
             "demo: impact-server on {endpoint}, arena scene ({} balls), 64 Hz, rollback 250 ms",

@@ -4,13 +4,13 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
+use impact_core::scene::Scene;
+use impact_core::sim::world::window_ticks;
+use impact_core::sim::{Plan, Pool};
 use impact_protocol::{Encoding, WorldId};
 use impact_server::rollback::{RollbackConfig, StalePolicy};
 use impact_server::runtime::auth::Users;
 use impact_server::runtime::{self, ServerOptions};
-use impact_server::scene::Scene;
-use impact_server::sim::world::window_ticks;
-use impact_server::sim::{Plan, Pool};
 use impact_server::{offline, recording};
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};

@@ -2,7 +2,7 @@
 //! and the events published for it. Its length never exceeds the window, so memory is fixed once
 //! it is full, however long the server runs.
 
-use crate::sim::{TickInput, World};
+use impact_core::sim::{TickInput, World};
 use impact_protocol::{CollisionEvent, Tick};
 use std::collections::VecDeque;
 
@@ -16,14 +16,14 @@ pub struct Frame {
     /// The inputs applied at the tick.
     pub inputs: Vec<TickInput>,
     /// The server's own actions at the tick (avatars joining and leaving).
-    pub system: Vec<crate::sim::SystemAction>,
+    pub system: Vec<impact_core::sim::SystemAction>,
     /// The tick's events as last published.
     pub events: Vec<CollisionEvent>,
     /// 0 when first published; +1 per correction.
     pub revision: u32,
     /// The box each body's path stayed within during the tick (by slot of `state`), for
     /// selective re-simulation; empty when not kept.
-    pub paths: Vec<crate::geometry::Aabb>,
+    pub paths: Vec<impact_core::geometry::Aabb>,
     /// The tick hit the per-tick resolution cap (its outcome depends on every body: selective
     /// re-simulation is not allowed through it).
     pub capped: bool,

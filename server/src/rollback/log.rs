@@ -5,14 +5,14 @@
 //! the order applied) and the hash it must reach. Rays' rewound hits are not logged: stepping the
 //! tick inside a [`Session`](super::Session) casts them again against the same history.
 
-use crate::geometry::Shape;
-use crate::sim::input::RewoundRay;
-use crate::sim::world::{ClassId, NewBody, Touch};
-use crate::sim::{SystemAction, TickInput, World};
 use glam::{DQuat, DVec3};
+use impact_core::geometry::Shape;
+use impact_core::sim::input::RewoundRay;
+use impact_core::sim::world::{ClassId, NewBody, Touch};
+use impact_core::sim::{SystemAction, TickInput, World};
 use impact_protocol::log::LoggedRay;
-use impact_protocol::log::{CheckpointBody, CheckpointShape, CheckpointTouch};
-use impact_protocol::{Checkpoint, LogTick, LoggedInput, LoggedSystem, Tick};
+use impact_protocol::log::{CheckpointBody, CheckpointTouch};
+use impact_protocol::{Checkpoint, LogTick, LoggedInput, LoggedSystem, ShapeSpec, Tick};
 
 /// One confirmed tick: what was applied at it and the hash of the world after it.
 #[derive(Clone, Debug)]
@@ -119,35 +119,6 @@ impl ConfirmedTick {
     }
 }
 
-fn shape_out(s: &Shape) -> Result<CheckpointShape, String> {
-    Ok(match s {
-        Shape::Sphere { radius } => CheckpointShape::Sphere { radius: *radius },
-        Shape::Capsule { half_height, radius } => {
-            CheckpointShape::Capsule { half_height: *half_height, radius: *radius }
-        }
-        Shape::Cuboid { half_extents } => CheckpointShape::Cuboid { half_extents: half_extents.to_array() },
-        Shape::Ellipsoid { radii } => CheckpointShape::Ellipsoid { radii: radii.to_array() },
-        Shape::Convex(h) => CheckpointShape::Convex { points: h.points.iter().map(|p| p.to_array()).collect() },
-        Shape::TriMesh(_) => return Err("a dynamic body has a triangle mesh".into()),
-    })
-}
-
-fn shape_in(s: &CheckpointShape) -> Result<Shape, String> {
-    Ok(match s {
-        CheckpointShape::Sphere { radius } => Shape::Sphere { radius: *radius },
-        CheckpointShape::Capsule { half_height, radius } => {
-            Shape::Capsule { half_height: *half_height, radius: *radius }
-        }
-        CheckpointShape::Cuboid { half_extents } => Shape::Cuboid { half_extents: DVec3::from_array(*half_extents) },
-        CheckpointShape::Ellipsoid { radii } => Shape::Ellipsoid { radii: DVec3::from_array(*radii) },
-        // The same points give the same hull: `convex_hull` keeps them as given.
-        CheckpointShape::Convex { points } => {
-            let pts: Vec<DVec3> = points.iter().map(|p| DVec3::from_array(*p)).collect();
-            Shape::convex_hull(&pts).ok_or("a checkpoint's convex hull is degenerate")?
-        }
-    })
-}
-
 /// The dynamic part of `w` (bodies, contacts, ids) as a checkpoint without clients.
 pub fn checkpoint_world(w: &World) -> Result<Checkpoint, String> {
     let b = &w.bodies;
@@ -156,7 +127,7 @@ pub fn checkpoint_world(w: &World) -> Result<Checkpoint, String> {
             Ok(CheckpointBody {
                 entity: b.id[i],
                 class: b.class[i].0,
-                shape: shape_out(&b.shape[i])?,
+                shape: b.shape[i].to_spec(),
                 position: b.pos[i].to_array(),
                 velocity: b.vel[i].to_array(),
                 rotation: b.rot[i].to_array(),
@@ -201,11 +172,15 @@ pub fn restore_world(scene: &World, c: &Checkpoint) -> Result<World, String> {
         if w.bodies.id.last().is_some_and(|&last| last >= b.entity) {
             return Err(format!("checkpoint bodies are not in ascending id order at {}", b.entity));
         }
+        if matches!(b.shape, ShapeSpec::Mesh { .. }) {
+            return Err(format!("checkpoint body {} is a mesh: a mesh belongs to a static class", b.entity));
+        }
+        let shape = Shape::from_spec(&b.shape).map_err(|e| format!("checkpoint body {}: shape.{e}", b.entity))?;
         w.bodies.push(
             b.entity,
             NewBody {
                 class: ClassId(b.class),
-                shape: shape_in(&b.shape)?,
+                shape,
                 pos: DVec3::from_array(b.position),
                 vel: DVec3::from_array(b.velocity),
                 rot: DQuat::from_array(b.rotation),

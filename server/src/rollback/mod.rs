@@ -14,16 +14,16 @@
 //! the world as it was at that tick.
 
 pub mod history;
+pub mod hitscan;
 pub mod log;
 pub mod reconcile;
-pub mod replay;
-pub mod rewind;
 pub mod selective;
+pub mod seq_window;
 
-use crate::sim::input;
-use crate::sim::output::Skipped;
-use crate::sim::{Plan, Stepper, SystemAction, TickInput, TickOutput, World};
 use history::{Frame, History};
+use impact_core::sim::input;
+use impact_core::sim::output::Skipped;
+use impact_core::sim::{Plan, Stepper, SystemAction, TickInput, TickOutput, World};
 use impact_protocol::{
     ClientId, ClientInput, CollisionEvent, CorrectionBatch, EventBatch, EventStatus, RayResult, RejectReason, Tick,
 };
@@ -148,7 +148,7 @@ pub struct Session {
     future: BTreeMap<u32, Vec<TickInput>>,
     system: Vec<SystemAction>,
     /// Each client's accepted seqs (replay protection), until [`Session::forget_client`].
-    windows: BTreeMap<ClientId, replay::SeqWindow>,
+    windows: BTreeMap<ClientId, seq_window::SeqWindow>,
     fresh: BTreeSet<(ClientId, u32)>,
     dirty_from: Option<Tick>,
     cfg: RollbackConfig,
@@ -225,7 +225,7 @@ impl Session {
 
     /// Runs the core's parallel stages, re-simulation included, on `pool` (results do not
     /// change).
-    pub fn set_pool(&mut self, pool: crate::par::Pool) {
+    pub fn set_pool(&mut self, pool: impact_core::par::Pool) {
         self.stepper.set_pool(pool);
     }
 
@@ -331,7 +331,7 @@ impl Session {
         let world = log::restore_world(scene, c)?;
         let mut s = Session::new(world, plan, cfg);
         for cl in &c.clients {
-            let w = replay::SeqWindow::from_parts(cl.highest_seq, &cl.seq_bits)
+            let w = seq_window::SeqWindow::from_parts(cl.highest_seq, &cl.seq_bits)
                 .ok_or_else(|| format!("client {}'s replay window has {} words", cl.client, cl.seq_bits.len()))?;
             s.windows.insert(cl.client, w);
         }
@@ -372,12 +372,14 @@ impl Session {
         let window = self.windows.get(&input.client);
         if let Err(r) = window.map_or(Ok(()), |w| w.check(input.seq)) {
             let detail = match r {
-                replay::Replay::Seen => format!("input {} of client {} was already accepted", input.seq, input.client),
-                replay::Replay::BelowFloor { floor } => format!(
+                seq_window::Replay::Seen => {
+                    format!("input {} of client {} was already accepted", input.seq, input.client)
+                }
+                seq_window::Replay::BelowFloor { floor } => format!(
                     "seq {} is at or below {floor}, the floor of client {}'s replay window of {} seqs",
                     input.seq,
                     input.client,
-                    replay::WINDOW
+                    seq_window::WINDOW
                 ),
             };
             return Err(Refusal::new(RejectReason::Duplicate, detail));
@@ -431,7 +433,7 @@ impl Session {
         let tick = self.world.tick;
         let mut inputs = self.future.remove(&tick.0).unwrap_or_default();
         let history = &self.history;
-        rewind::rewind_rays(
+        hitscan::rewind_rays(
             tick,
             &mut inputs,
             self.world.config.max_rewind_ticks,
@@ -492,7 +494,7 @@ impl Session {
             let history = &self.history;
             let oldest = history.oldest().unwrap_or(tick);
             let max_rewind = w.config.max_rewind_ticks;
-            rewind::rewind_rays(tick, &mut inputs, max_rewind, oldest, &w, |t| history.get(t).map(|f| &f.state));
+            hitscan::rewind_rays(tick, &mut inputs, max_rewind, oldest, &w, |t| history.get(t).map(|f| &f.state));
             self.history.get_mut(tick).expect("held").inputs = inputs;
             let frame = self.history.get(tick).expect("ticks in the window are held");
             let caps = self.stepper.stats.resolution_cap_hits;
@@ -605,7 +607,7 @@ impl Session {
 
     /// The lowest seq `client` may send next (0 for a client never seen).
     pub fn next_seq(&self, client: ClientId) -> u32 {
-        self.windows.get(&client).map_or(0, replay::SeqWindow::next_seq)
+        self.windows.get(&client).map_or(0, seq_window::SeqWindow::next_seq)
     }
 
     /// Drops `client`'s replay window: the runtime calls it when the client's presence is over

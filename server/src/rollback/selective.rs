@@ -17,11 +17,11 @@
 //! full re-simulation on random scenes and late inputs.
 
 use super::{Advance, Session};
-use crate::broadphase::sorted::SortedBoxes;
-use crate::geometry::Aabb;
 use crate::rollback::history::Frame;
-use crate::sim::{Stepper, TickInput, TickOutput, World};
 use glam::DVec3;
+use impact_core::broadphase::sorted::SortedBoxes;
+use impact_core::geometry::Aabb;
+use impact_core::sim::{Stepper, TickInput, TickOutput, World};
 use impact_protocol::{Action, CollisionEvent, EntityId, RayResult, Tick};
 use std::collections::BTreeSet;
 
@@ -107,7 +107,7 @@ struct SubRun {
     after: Vec<World>,
     paths: Vec<(Vec<EntityId>, Vec<Aabb>)>,
     rays: Vec<RayResult>,
-    skipped: Vec<crate::sim::output::Skipped>,
+    skipped: Vec<impact_core::sim::output::Skipped>,
 }
 
 fn simulate(s: &Session, from: Tick, now: Tick, reach: &BTreeSet<EntityId>) -> Option<SubRun> {

@@ -23,12 +23,12 @@ mod error;
 pub mod http;
 pub mod metrics;
 mod server;
-mod session;
 pub mod state;
 mod timing;
+mod zenoh_config;
 
 pub use error::RuntimeError;
 pub use metrics::Metrics;
 pub use server::{start, start_worlds, ServerHandle, ServerOptions, Summary};
-pub use session::zenoh_config;
 pub use state::StateOptions;
+pub use zenoh_config::zenoh_config;

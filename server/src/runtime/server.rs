@@ -3,10 +3,10 @@
 use super::egress::{self, Out};
 use super::error::RuntimeError;
 use super::metrics::{Metrics, Totals};
-use super::state::{Capture, StateCounters, StateOptions, Viewer};
+use super::state::{Capture, StateCounters, StateOptions, Watcher};
 use super::timing::LeadEstimator;
 use crate::rollback::RollbackConfig;
-use crate::scene::Scene;
+use impact_core::scene::Scene;
 use impact_protocol::{
     encode, keys, ClientId, ClientInput, Encoding, EntityId, InputReject, RejectReason, ServerMessage, Tick, WorldId,
 };
@@ -18,6 +18,7 @@ use std::thread::JoinHandle;
 use zenoh::Wait;
 
 mod answer;
+mod capture;
 mod ingress;
 mod standby;
 mod stats;
@@ -68,7 +69,7 @@ pub struct ServerOptions {
     /// Prometheus metrics to keep (`--metrics`); the registry may be shared by several worlds.
     pub metrics: Option<Metrics>,
     /// Threads for the core's parallel stages (`--threads`), shared by the process's worlds.
-    pub pool: crate::par::Pool,
+    pub pool: impact_core::par::Pool,
 }
 
 impl Default for ServerOptions {
@@ -91,7 +92,7 @@ impl Default for ServerOptions {
             standby: false,
             state: StateOptions::default(),
             metrics: None,
-            pool: crate::par::Pool::sequential(),
+            pool: impact_core::par::Pool::sequential(),
         }
     }
 }

@@ -14,9 +14,9 @@
 //! plus the frames it waited), so none starves. The budget is a token bucket: a second's worth of
 //! bytes at most, refilled each frame, so a full frame may spend what the deltas left.
 
-use crate::sim::world::SimConfig;
-use crate::sim::world::{BodyTable, StaticWorld};
 use glam::DVec3;
+use impact_core::sim::world::SimConfig;
+use impact_core::sim::world::{BodyTable, StaticWorld};
 use impact_protocol::{
     encode, keys, BodyInfo, BodyMotion, BodyShape, ClientId, Encoding, EntityId, ServerMessage, StateFrame, Tick,
     WorldId,
@@ -48,7 +48,7 @@ impl Default for StateOptions {
 
 /// A client whose stream is due: its avatar is the centre of its area of interest.
 #[derive(Clone, Debug)]
-pub struct Viewer {
+pub struct Watcher {
     /// The client.
     pub client: ClientId,
     /// Its avatar.
@@ -76,12 +76,12 @@ pub struct Capture {
     /// Class names and whether each is static.
     pub config: Arc<SimConfig>,
     /// Clients with an avatar.
-    pub viewers: Vec<Viewer>,
+    pub watchers: Vec<Watcher>,
 }
 
 impl Capture {
     /// Copies what moves out of `world`.
-    pub fn of(world: &crate::sim::World, viewers: Vec<Viewer>) -> Capture {
+    pub fn of(world: &impact_core::sim::World, watchers: Vec<Watcher>) -> Capture {
         let b = &world.bodies;
         Capture {
             tick: world.tick,
@@ -91,7 +91,7 @@ impl Capture {
             asleep: b.asleep.clone(),
             statics: world.statics.clone(),
             config: world.config.clone(),
-            viewers,
+            watchers,
         }
     }
 }
@@ -145,7 +145,7 @@ struct Filed {
 /// cells in (x, y, z) order, z fastest, each cell's bodies together, so a search reads each
 /// (x, y) row of cells as one slice (no hashing, no pointer chasing).
 #[derive(Debug, Default)]
-struct Grid {
+struct AreaGrid {
     origin: DVec3,
     size: f64,
     dims: [i64; 3],
@@ -157,7 +157,7 @@ struct Grid {
 /// Most cells a grid has; a world wider than this many cells of the asked size gets bigger cells.
 const MAX_CELLS: i64 = 1 << 20;
 
-impl Grid {
+impl AreaGrid {
     fn cell_of(&self, p: DVec3) -> [i64; 3] {
         let q = ((p - self.origin) / self.size).floor();
         [q.x as i64, q.y as i64, q.z as i64]
@@ -254,7 +254,7 @@ pub struct Streams {
     frames: u32,
     entries: Vec<Entry>,
     /// The bodies no larger than half `aoi_m`, by cell of half `aoi_m`.
-    grid: Grid,
+    grid: AreaGrid,
     filed: Vec<Filed>,
     /// Bodies larger than a cell, tested against every client.
     large: Vec<u32>,
@@ -303,7 +303,7 @@ impl Streams {
             clients: BTreeMap::new(),
             frames: 0,
             entries: Vec::new(),
-            grid: Grid::default(),
+            grid: AreaGrid::default(),
             filed: Vec::new(),
             large: Vec::new(),
             reach: 0.0,
@@ -324,7 +324,7 @@ impl Streams {
         self.index(cap);
         let full = self.frames % self.opts.full_every.max(1) == 0;
         self.frames = self.frames.wrapping_add(1);
-        let mut out = Vec::with_capacity(cap.viewers.len() + 1);
+        let mut out = Vec::with_capacity(cap.watchers.len() + 1);
         // The world stream: every body, no budget; skipped while nobody listens, and full again
         // for whoever comes.
         if world {
@@ -340,7 +340,7 @@ impl Streams {
         let per_frame = f64::from(self.opts.bytes_per_s) / f64::from(self.opts.hz.max(1));
         let cap_tokens = f64::from(self.opts.bytes_per_s).max(per_frame);
         let mut seen = std::collections::BTreeSet::new();
-        for v in &cap.viewers {
+        for v in &cap.watchers {
             let Ok(at) = self.entries.binary_search_by_key(&v.avatar, |e| e.motion.0) else {
                 continue;
             };
@@ -465,7 +465,7 @@ impl Streams {
 }
 
 /// A body's class id.
-fn class_of(cap: &Capture, e: &Entry) -> Option<crate::sim::world::ClassId> {
+fn class_of(cap: &Capture, e: &Entry) -> Option<impact_core::sim::world::ClassId> {
     match e.src {
         Src::Dynamic(i) => Some(cap.table.class[i]),
         Src::Static(i) => Some(cap.statics.class[i]),
@@ -498,8 +498,8 @@ fn info(cap: &Capture, e: &Entry) -> BodyInfo {
     }
 }
 
-fn shape_of(s: &crate::geometry::Shape) -> BodyShape {
-    use crate::geometry::ShapeKind as K;
+fn shape_of(s: &impact_core::geometry::Shape) -> BodyShape {
+    use impact_core::geometry::ShapeKind as K;
     match s.kind() {
         K::Sphere => BodyShape::Sphere,
         K::Capsule => BodyShape::Capsule,
@@ -681,8 +681,8 @@ pub fn run(
     for (n, mut cap) in rx.into_iter().enumerate() {
         let t0 = Instant::now();
         let n = n as u64;
-        listeners.retain(|c, _| cap.viewers.iter().any(|v| v.client == *c));
-        cap.viewers.retain(|v| {
+        listeners.retain(|c, _| cap.watchers.iter().any(|v| v.client == *c));
+        cap.watchers.retain(|v| {
             let l = listeners.entry(v.client).or_insert_with(|| Listener {
                 publisher: publisher(keys::CLIENT_STATE.key(&world, Some(v.client))),
                 listening: false,
@@ -729,22 +729,22 @@ pub fn run(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scene::Scene;
-    use crate::sim::world::NewBody;
     use glam::DQuat;
+    use impact_core::scene::Scene;
+    use impact_core::sim::world::NewBody;
     use impact_protocol::decode;
 
     /// The arena with a player sphere for each of `players` clients, spread along x.
-    fn arena(players: u32) -> (crate::sim::World, Vec<Viewer>) {
+    fn arena(players: u32) -> (impact_core::sim::World, Vec<Watcher>) {
         let scene = Scene::load(&Scene::bundled_path("arena")).unwrap();
         let mut w = scene.world;
         let player = w.config.classes.props.iter().position(|p| p.name == "player").unwrap();
-        let mut viewers = Vec::new();
+        let mut watchers = Vec::new();
         for k in 0..players {
             let id = w
                 .spawn(NewBody {
-                    class: crate::sim::world::ClassId(player as u16),
-                    shape: crate::geometry::Shape::Sphere { radius: 0.5 },
+                    class: impact_core::sim::world::ClassId(player as u16),
+                    shape: impact_core::geometry::Shape::Sphere { radius: 0.5 },
                     pos: DVec3::new(-25.0 + 10.0 * f64::from(k), 5.0, 0.0),
                     vel: DVec3::ZERO,
                     rot: DQuat::IDENTITY,
@@ -752,9 +752,9 @@ mod tests {
                     owner: Some(ClientId(k + 1)),
                 })
                 .unwrap();
-            viewers.push(Viewer { client: ClientId(k + 1), avatar: id, encoding: Encoding::MsgPack });
+            watchers.push(Watcher { client: ClientId(k + 1), avatar: id, encoding: Encoding::MsgPack });
         }
-        (w, viewers)
+        (w, watchers)
     }
 
     /// What a receiver holds after applying a frame (`false` when it had to wait for a full one).
@@ -833,18 +833,18 @@ mod tests {
 
     #[test]
     fn a_client_stream_shows_its_area_nearest_first_within_its_budget() {
-        let (mut w, viewers) = arena(4);
+        let (mut w, watchers) = arena(4);
         let o = opts();
         let mut s = Streams::new(WorldId::new("arena").unwrap(), o.clone(), Encoding::MsgPack);
-        let mut held: Vec<BTreeMap<EntityId, (BodyMotion, Option<BodyInfo>)>> = vec![BTreeMap::new(); viewers.len()];
-        let mut sent = vec![0usize; viewers.len()];
+        let mut held: Vec<BTreeMap<EntityId, (BodyMotion, Option<BodyInfo>)>> = vec![BTreeMap::new(); watchers.len()];
+        let mut sent = vec![0usize; watchers.len()];
         let frames = 60u32;
         for frame in 0..frames {
             for p in w.bodies.pos.iter_mut() {
                 p.z += 0.05;
             }
-            let out = s.frames(&Capture::of(&w, viewers.clone()), false, true);
-            assert_eq!(out.len(), viewers.len(), "no world stream when nobody listens");
+            let out = s.frames(&Capture::of(&w, watchers.clone()), false, true);
+            assert_eq!(out.len(), watchers.len(), "no world stream when nobody listens");
             for (k, p) in out.iter().enumerate() {
                 let f = decoded(p);
                 assert_eq!(p.key, format!("impact/v1/arena/client/{}/state", k + 1));
@@ -859,7 +859,7 @@ mod tests {
                     assert!(d <= o.aoi_m + 0.06, "frame {frame}: {} at {d} m", m.0);
                 }
                 // Its own avatar is the nearest body: always shown.
-                assert!(held[k].contains_key(&viewers[k].avatar));
+                assert!(held[k].contains_key(&watchers[k].avatar));
                 if frame == 0 {
                     // The first (full) frame: the budget binds, and what it sent is nearer
                     // than what it deferred.
@@ -884,15 +884,15 @@ mod tests {
 
     #[test]
     fn a_body_that_leaves_the_area_is_said_to_leave() {
-        let (mut w, viewers) = arena(1);
+        let (mut w, watchers) = arena(1);
         let mut s = Streams::new(
             WorldId::new("arena").unwrap(),
             StateOptions { bytes_per_s: 1 << 24, ..opts() },
             Encoding::Json,
         );
-        let f0 = decoded(&s.frames(&Capture::of(&w, viewers.clone()), false, true)[0]);
+        let f0 = decoded(&s.frames(&Capture::of(&w, watchers.clone()), false, true)[0]);
         // With the budget out of the way, the stream shows exactly the bodies in the area.
-        let c = w.bodies.pos[w.bodies.slot(viewers[0].avatar).unwrap()];
+        let c = w.bodies.pos[w.bodies.slot(watchers[0].avatar).unwrap()];
         let mut expected: Vec<EntityId> = s
             .entries
             .iter()
@@ -902,11 +902,11 @@ mod tests {
         expected.sort();
         assert!(expected.len() > 20, "{} bodies in the area", expected.len());
         assert_eq!(f0.moved.iter().map(|m| m.0).collect::<Vec<_>>(), expected);
-        let avatar = viewers[0].avatar;
+        let avatar = watchers[0].avatar;
         let near = f0.moved.iter().find(|m| m.0 != avatar && w.bodies.slot(m.0).is_some()).unwrap().0;
         let slot = w.bodies.slot(near).unwrap();
         w.bodies.pos[slot] = DVec3::new(28.0, 18.0, 28.0);
-        let f1 = decoded(&s.frames(&Capture::of(&w, viewers), false, true)[0]);
+        let f1 = decoded(&s.frames(&Capture::of(&w, watchers), false, true)[0]);
         assert!(!f1.full);
         assert_eq!(f1.left, vec![near]);
         assert!(f1.moved.iter().all(|m| m.0 != near));

@@ -1,7 +1,7 @@
 //! Scenes shared by the core's tests.
 
+use impact_core::scene::Scene;
 use impact_protocol::{Action, ClientId, ClientInput, EntityId, Tick};
-use impact_server::scene::Scene;
 
 /// A shooter (entity 0, client 1) at the origin and a target (entity 1) crossing its line of
 /// fire (+x) at 8 m/s along z: its centre crosses z = 0 at tick 100, and it is destroyed when hit.

@@ -5,9 +5,9 @@
 pub mod browser;
 pub mod process;
 
+use impact_core::scene::Scene;
 use impact_protocol::{encode, keys, ClientId, ClientInput, ClientMessage, Encoding, ServerMessage, WorldId};
 use impact_server::runtime::{self, ServerHandle, ServerOptions};
-use impact_server::scene::Scene;
 use std::sync::mpsc::{sync_channel, Receiver};
 use std::time::{Duration, Instant};
 use zenoh::Wait;

@@ -55,7 +55,7 @@ fn rapier_ccd(set: &trials::TrialSet, repeats: u32) -> Errors {
         let mut colliders = ColliderSet::new();
         for k in 0..w.statics.id.len() {
             let Some(half) = (match &w.statics.shape[k] {
-                impact_server::geometry::Shape::Cuboid { half_extents } => Some(*half_extents),
+                impact_core::geometry::Shape::Cuboid { half_extents } => Some(*half_extents),
                 _ => None,
             }) else {
                 continue;
@@ -207,13 +207,13 @@ pub fn run(a: &AccuracyArgs) -> Result<()> {
     // The cost of accuracy on a real scene: the arena (2,000 balls, walls) with the default
     // method against discrete overlap testing, median tick over 200 ticks each.
     progress("arena: default against discrete");
-    let arena = impact_server::scene::Scene::load(&impact_server::scene::Scene::bundled_path("arena"))?;
+    let arena = impact_core::scene::Scene::load(&impact_core::scene::Scene::bundled_path("arena"))?;
     let mut arena_ms = Vec::new();
     for m in [Method::Discrete, Method::Default] {
         let mut w = arena.world.clone();
         let plan = m.apply(&mut w);
-        let mut st = impact_server::sim::Stepper::new(plan, false);
-        let mut out = impact_server::sim::TickOutput::default();
+        let mut st = impact_core::sim::Stepper::new(plan, false);
+        let mut out = impact_core::sim::TickOutput::default();
         let mut times = Vec::new();
         for _ in 0..200 {
             let t = Instant::now();

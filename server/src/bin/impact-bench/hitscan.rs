@@ -7,10 +7,10 @@
 use super::report::{json_line, median_ms, progress};
 use anyhow::Result;
 use clap::Args;
+use impact_core::sim::{Plan, TickInput};
 use impact_protocol::{Action, ClientId, Tick};
-use impact_server::rollback::rewind::rewind_rays;
+use impact_server::rollback::hitscan::rewind_rays;
 use impact_server::rollback::{RollbackConfig, Session};
-use impact_server::sim::{Plan, TickInput};
 use serde_json::json;
 use std::time::Instant;
 

@@ -6,8 +6,8 @@
 use super::report::{json_line, median_ms, progress};
 use anyhow::Result;
 use clap::Args;
-use impact_server::scene::Scene;
-use impact_server::sim::{Plan, Stepper, TickOutput};
+use impact_core::scene::Scene;
+use impact_core::sim::{Plan, Stepper, TickOutput};
 use serde_json::json;
 use std::time::Instant;
 

@@ -23,17 +23,17 @@ pub fn mean_ms(samples: &[Duration]) -> f64 {
 
 /// The core's pools for `--threads` counts (default: one thread and the machine's cores, for
 /// the speed-up), each with its count.
-pub fn pools(threads: &[u16]) -> anyhow::Result<Vec<(usize, impact_server::par::Pool)>> {
+pub fn pools(threads: &[u16]) -> anyhow::Result<Vec<(usize, impact_core::par::Pool)>> {
     let mut counts: Vec<usize> = threads.iter().map(|&t| usize::from(t)).collect();
     if counts.is_empty() {
-        counts = vec![1, impact_server::par::Pool::available()];
+        counts = vec![1, impact_core::par::Pool::available()];
     }
     counts.dedup();
     counts
         .into_iter()
         .map(|t| {
             anyhow::ensure!(t >= 1, "--threads must be at least 1");
-            Ok((t, impact_server::par::Pool::new(t).map_err(anyhow::Error::msg)?))
+            Ok((t, impact_core::par::Pool::new(t).map_err(anyhow::Error::msg)?))
         })
         .collect()
 }

@@ -12,13 +12,13 @@
 use super::report::{json_line, mean_ms, median_ms, progress};
 use anyhow::{Context, Result};
 use clap::Args;
+use impact_core::broadphase::{Broadphase, BroadphaseKind};
+use impact_core::geometry::Shape;
+use impact_core::narrow;
+use impact_core::scene::Scene;
+use impact_core::sim::world::Rule;
+use impact_core::sim::{Plan, Stepper, TickOutput, World};
 use impact_protocol::Phase;
-use impact_server::broadphase::{Broadphase, BroadphaseKind};
-use impact_server::geometry::Shape;
-use impact_server::narrow;
-use impact_server::scene::Scene;
-use impact_server::sim::world::Rule;
-use impact_server::sim::{Plan, Stepper, TickOutput, World};
 use rapier3d::parry::utils::Array2;
 use rapier3d::prelude::*;
 use serde_json::json;
@@ -87,7 +87,7 @@ fn penetration(w: &World) -> f64 {
     let b = &w.bodies;
     let boxes: Vec<_> = (0..b.len()).map(|i| b.shape[i].world_aabb(b.pos[i], b.rot[i])).collect();
     let mut pairs = Vec::new();
-    Broadphase::new(BroadphaseKind::Grid).pairs(&boxes, &mut pairs, &impact_server::par::Pool::sequential());
+    Broadphase::new(BroadphaseKind::Grid).pairs(&boxes, &mut pairs, &impact_core::par::Pool::sequential());
     let mut worst = 0.0f64;
     for (i, j) in pairs {
         let (i, j) = (i as usize, j as usize);
@@ -132,7 +132,7 @@ fn collider(shape: &Shape) -> Result<ColliderBuilder> {
 }
 
 /// The restitution a class bounces with against its own kind (or the world's default).
-fn restitution(w: &World, class: impact_server::sim::world::ClassId) -> f32 {
+fn restitution(w: &World, class: impact_core::sim::world::ClassId) -> f32 {
     match w.config.classes.rule(class, class) {
         Rule::Bounce { restitution } => restitution as f32,
         _ => 0.0,

@@ -6,10 +6,10 @@
 use super::report::{json_line, median_ms, pools, progress};
 use anyhow::Result;
 use clap::Args;
+use impact_core::scene::Scene;
+use impact_core::sim::Plan;
 use impact_protocol::{Action, ClientId, ClientInput, Tick};
 use impact_server::rollback::{RollbackConfig, Session};
-use impact_server::scene::Scene;
-use impact_server::sim::Plan;
 use serde_json::json;
 use std::time::Instant;
 

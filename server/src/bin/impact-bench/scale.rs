@@ -10,9 +10,9 @@
 use super::report::{json_line, mean_ms, median_ms, pools, progress, svg_loglog, Series};
 use anyhow::{ensure, Result};
 use clap::Args;
-use impact_server::broadphase::BroadphaseKind;
-use impact_server::scene::Scene;
-use impact_server::sim::{Plan, Pool, Stepper, TickOutput, World};
+use impact_core::broadphase::BroadphaseKind;
+use impact_core::scene::Scene;
+use impact_core::sim::{Plan, Pool, Stepper, TickOutput, World};
 use rapier3d::prelude::*;
 use serde_json::json;
 use std::time::{Duration, Instant};

@@ -7,10 +7,10 @@
 use super::report::{json_line, median_ms, progress};
 use anyhow::{Context, Result};
 use clap::Args;
+use impact_core::scene::{avatar_position, Scene};
+use impact_core::sim::{Plan, Stepper, SystemAction, TickInput, TickOutput};
 use impact_protocol::{Action, ClientId, Encoding, WorldId};
-use impact_server::runtime::state::{Capture, StateOptions, Streams, Viewer};
-use impact_server::scene::{avatar_position, Scene};
-use impact_server::sim::{Plan, Stepper, SystemAction, TickInput, TickOutput};
+use impact_server::runtime::state::{Capture, StateOptions, Streams, Watcher};
 use serde_json::json;
 use std::time::{Duration, Instant};
 
@@ -111,10 +111,10 @@ fn one(a: &StateArgs, clients: u32, aoi: f64) -> Result<Figures> {
         })
         .collect();
     stepper.step_with(&mut w, &spawns, &[], &mut out);
-    let avatars: Vec<Viewer> = out
+    let avatars: Vec<Watcher> = out
         .spawned
         .iter()
-        .map(|(client, entity)| Viewer { client: *client, avatar: *entity, encoding: Encoding::MsgPack })
+        .map(|(client, entity)| Watcher { client: *client, avatar: *entity, encoding: Encoding::MsgPack })
         .collect();
     let opts = StateOptions { hz: a.hz, aoi_m: aoi, bytes_per_s: a.budget, ..StateOptions::default() };
     let mut streams = Streams::new(WorldId::new("arena").map_err(anyhow::Error::msg)?, opts, Encoding::MsgPack);

@@ -9,9 +9,9 @@
 use super::report::{json_line, progress};
 use anyhow::Result;
 use clap::Args;
+use impact_core::scene::Scene;
 use impact_protocol::keys;
 use impact_server::runtime::{self, ServerOptions};
-use impact_server::scene::Scene;
 use serde_json::json;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;

@@ -25,7 +25,7 @@ impl TickLoop {
                                 client: *client,
                                 avatar: s.avatar,
                                 highest_seq: None,
-                                seq_bits: vec![0; crate::rollback::replay::WINDOW as usize / 64],
+                                seq_bits: vec![0; crate::rollback::seq_window::WINDOW as usize / 64],
                             }),
                         }
                     }
@@ -90,7 +90,7 @@ impl TickLoop {
 }
 
 /// The world as a snapshot message.
-fn snapshot(w: &crate::sim::World) -> impact_protocol::WorldSnapshot {
+fn snapshot(w: &impact_core::sim::World) -> impact_protocol::WorldSnapshot {
     let b = &w.bodies;
     impact_protocol::WorldSnapshot {
         tick: w.tick,

@@ -14,7 +14,7 @@
 use super::{Control, RuntimeError, TickLoop};
 use crate::rollback::log::{self, ConfirmedTick};
 use crate::rollback::{Advance, Session};
-use crate::sim::{SystemAction, TickInput};
+use impact_core::sim::{SystemAction, TickInput};
 use impact_protocol::{
     decode, keys, Admitted, CollisionEvent, Encoding, EventKey, LogTick, ServerMessage, Tick, WorldId,
 };
@@ -260,7 +260,7 @@ impl TickLoop {
             Err(e) => return Err(e.to_string()),
         };
         let cfg = self.session.config().clone();
-        let plan = crate::sim::Plan::for_world(self.session.world());
+        let plan = impact_core::sim::Plan::for_world(self.session.world());
         let mut session = Session::restore(self.session.world(), &c, plan, cfg)?;
         session.set_pool(self.session.stepper().pool().clone());
         self.session = session;

@@ -2,16 +2,16 @@
 //! queues, advances the rollback session, and publishes acks, events, corrections, the input log,
 //! stats and the state capture; it also answers queries between ticks.
 
-use super::super::egress::Out;
-use super::super::metrics::WorldMetrics;
-use super::super::state::{Capture, StateCounters};
-use super::super::timing::LeadEstimator;
 use super::{
     declare_primary, reject, send, ClientState, Control, Ingress, Primary, ServerOptions, Shared, Summary, Wiring,
 };
 use crate::rollback::{RollbackConfig, Session};
-use crate::scene::{avatar_position, AvatarRule, Scene};
-use crate::sim::{Plan, SystemAction};
+use crate::runtime::egress::Out;
+use crate::runtime::metrics::WorldMetrics;
+use crate::runtime::state::{Capture, StateCounters};
+use crate::runtime::timing::LeadEstimator;
+use impact_core::scene::{avatar_position, AvatarRule, Scene};
+use impact_core::sim::{Plan, SystemAction};
 use impact_protocol::{
     encode, keys, Admitted, ClientId, CollisionEvent, Encoding, EntityId, EventBatch, InputAck, InputReject,
     LoggedInput, RejectReason, ServerMessage, Tick, Welcome, WorldId,

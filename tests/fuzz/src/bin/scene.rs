@@ -1,8 +1,8 @@
 //! Fuzz target: the scene loader (`Scene::parse`) on arbitrary text, then the plan for what it
 //! built. A crash is a panic: every bad scene must come back as a `SceneError` naming the line.
 
-use impact_server::scene::Scene;
-use impact_server::sim::Plan;
+use impact_core::scene::Scene;
+use impact_core::sim::Plan;
 
 fn main() {
     afl::fuzz!(|data: &[u8]| {

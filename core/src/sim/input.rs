@@ -135,6 +135,14 @@ fn speed_ok(
     Ok(())
 }
 
+/// Whether a client may spawn a body of `shape` (`field` names it in the reason).
+fn spawnable(shape: &ShapeSpec, field: &str) -> Result<(), (RejectReason, String)> {
+    if !shape.spawnable() {
+        return Err((RejectReason::OutOfRange, format!("{field}: a client spawns a sphere, a capsule or a cuboid")));
+    }
+    Shape::from_spec(shape).map(drop).map_err(|e| (RejectReason::OutOfRange, format!("{field}.{e}")))
+}
+
 /// Whether `client` may apply `actions` to the world as it is now. The runtime calls this on
 /// arrival; [`apply`] calls it again at the input's tick.
 pub fn check(w: &World, client: ClientId, actions: &[Action]) -> Result<(), (RejectReason, String)> {
@@ -151,7 +159,8 @@ pub fn check(w: &World, client: ClientId, actions: &[Action]) -> Result<(), (Rej
             Action::FireRay { shooter, .. } => {
                 owned(w, client, *shooter)?;
             }
-            Action::SpawnProjectile { velocity, .. } => {
+            Action::SpawnProjectile { shape, velocity, .. } => {
+                spawnable(shape, &format!("actions[{k}].shape"))?;
                 let class = w.config.projectile_class.ok_or_else(|| {
                     (RejectReason::OutOfRange, "this scene has no projectile class: spawning is disabled".to_string())
                 })?;
@@ -175,17 +184,6 @@ fn clamp_speed(v: DVec3, max: f64) -> DVec3 {
         v * (max / s)
     } else {
         v
-    }
-}
-
-/// The core shape for a wire shape.
-pub fn shape_of(spec: &ShapeSpec) -> Shape {
-    match *spec {
-        ShapeSpec::Sphere { radius_m } => Shape::Sphere { radius: radius_m },
-        ShapeSpec::Capsule { half_height_m, radius_m } => {
-            Shape::Capsule { half_height: half_height_m, radius: radius_m }
-        }
-        ShapeSpec::Cuboid { half_extents_m } => Shape::Cuboid { half_extents: DVec3::from_array(half_extents_m) },
     }
 }
 
@@ -240,7 +238,8 @@ fn apply_action(
                 return;
             };
             let props = &classes.props[class.0 as usize];
-            let shape = shape_of(shape);
+            // `check` built it already: a shape that does not build never reaches here.
+            let Ok(shape) = Shape::from_spec(shape) else { return };
             let inv_mass = 1.0 / (props.density_kg_m3 * shape.volume());
             let vel = clamp_speed(DVec3::from_array(*velocity), props.max_speed_mps);
             let body = NewBody {

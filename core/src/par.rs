@@ -8,16 +8,24 @@
 //! first thread to finish decide an order, and what depends on order (resolution in time of
 //! impact, the resting-contact and settle passes) stays on one thread. The determinism test
 //! (`server/tests/threads.rs`) checks it over every bundled scene and a rollback stress run.
+//!
+//! The threads are a feature (`threads`, on by default): without it there is no rayon, every
+//! loop runs inline on the caller's thread, and [`Pool::new`] refuses more than one thread. A
+//! client stepping its own avatar builds the core that way.
 
+#[cfg(feature = "threads")]
 use rayon::prelude::*;
 use std::ops::Range;
+#[cfg(feature = "threads")]
 use std::sync::atomic::{AtomicBool, Ordering};
+#[cfg(feature = "threads")]
 use std::sync::Arc;
 
 /// Threads the tick may use, shared by every stepper of a process (clones share the threads).
 /// The default is one thread: no pool at all, the loops run inline.
 #[derive(Clone, Debug, Default)]
 pub struct Pool {
+    #[cfg(feature = "threads")]
     pool: Option<Arc<rayon::ThreadPool>>,
     /// Cut every loop as finely as the threads allow, whatever its length (tests: small
     /// scenes then take the parallel paths too).
@@ -38,8 +46,10 @@ pub const MIN_PIECE_HEAVY: usize = 1024;
 /// Looks for work (about a microsecond apart) a thread kept awake by [`Pool::run`] makes in a
 /// row, finding none, before it stops keeping awake for the tick (it then sleeps as rayon's idle
 /// threads do): longer than the sequential stretches of a tick of 10,000 bodies.
+#[cfg(feature = "threads")]
 const IDLE_LOOKS: u32 = 512;
 
+#[cfg(feature = "threads")]
 thread_local! {
     /// Set while this thread runs a tick ([`Pool::run`]'s closure) or keeps awake for one.
     static BUSY: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
@@ -47,14 +57,17 @@ thread_local! {
 
 /// Marks this thread busy until dropped (restoring what was there: ticks may nest, a rollback's
 /// re-simulation inside a tick, say).
+#[cfg(feature = "threads")]
 struct Busy(bool);
 
+#[cfg(feature = "threads")]
 impl Busy {
     fn enter() -> Busy {
         Busy(BUSY.replace(true))
     }
 }
 
+#[cfg(feature = "threads")]
 impl Drop for Busy {
     fn drop(&mut self) {
         BUSY.set(self.0);
@@ -64,14 +77,23 @@ impl Drop for Busy {
 impl Pool {
     /// One thread: every loop runs inline on the caller's thread.
     pub fn sequential() -> Pool {
-        Pool { pool: None, fine: false }
+        Pool::default()
     }
 
-    /// A pool of `threads` threads (1 or 0: [`Pool::sequential`]).
+    /// A pool of `threads` threads (1 or 0: [`Pool::sequential`]; more than one is refused
+    /// without the `threads` feature).
     pub fn new(threads: usize) -> Result<Pool, String> {
         if threads <= 1 {
             return Ok(Pool::sequential());
         }
+        #[cfg(not(feature = "threads"))]
+        return Err(format!("{threads} core threads asked, but impact-core was built without its `threads` feature"));
+        #[cfg(feature = "threads")]
+        Pool::spawn(threads)
+    }
+
+    #[cfg(feature = "threads")]
+    fn spawn(threads: usize) -> Result<Pool, String> {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .thread_name(|i| format!("impact-core-{i}"))
@@ -94,7 +116,11 @@ impl Pool {
 
     /// Threads in the pool.
     pub fn threads(&self) -> usize {
-        self.pool.as_ref().map_or(1, |p| p.current_num_threads())
+        #[cfg(feature = "threads")]
+        if let Some(pool) = &self.pool {
+            return pool.current_num_threads();
+        }
+        1
     }
 
     /// Runs `f` on one of the pool's threads (inline without a pool). A whole tick runs this
@@ -112,10 +138,20 @@ impl Pool {
     /// re-simulates a few bodies sixteen times; waking the pool for each tick took longer than
     /// the ticks).
     pub fn run<R: Send>(&self, items: usize, f: impl FnOnce() -> R + Send) -> R {
-        let Some(pool) = &self.pool else { return f() };
-        if items < MIN_PIECE && !self.fine {
-            return f();
+        #[cfg(feature = "threads")]
+        if let Some(pool) = &self.pool {
+            if items >= MIN_PIECE || self.fine {
+                return Pool::keep_awake_while(pool, f);
+            }
         }
+        #[cfg(not(feature = "threads"))]
+        let _ = items;
+        f()
+    }
+
+    /// Runs `f` on one of `pool`'s threads while its other threads stay awake ([`Pool::run`]).
+    #[cfg(feature = "threads")]
+    fn keep_awake_while<R: Send>(pool: &rayon::ThreadPool, f: impl FnOnce() -> R + Send) -> R {
         pool.install(|| {
             let done = Arc::new(AtomicBool::new(false));
             let awake = done.clone();
@@ -165,6 +201,7 @@ impl Pool {
     }
 
     /// The pool and the number of pieces for `n` items, or `None` to run inline.
+    #[cfg(feature = "threads")]
     fn cut(&self, n: usize, min_piece: usize) -> Option<(&rayon::ThreadPool, usize)> {
         let pool = self.pool.as_deref()?;
         // A few pieces per thread, so one slow piece (a crowded region) does not hold the rest.
@@ -179,11 +216,26 @@ impl Pool {
     pub fn extend<T: Send>(
         &self,
         n: usize,
-        min_piece: usize,
+        #[cfg_attr(not(feature = "threads"), allow(unused_variables))] min_piece: usize,
         out: &mut Vec<T>,
         f: impl Fn(Range<usize>, &mut Vec<T>) + Sync,
     ) {
-        let Some((pool, pieces)) = self.cut(n, min_piece) else { return f(0..n, out) };
+        #[cfg(feature = "threads")]
+        if let Some((pool, pieces)) = self.cut(n, min_piece) {
+            return Pool::extend_in_pieces(pool, pieces, n, out, f);
+        }
+        f(0..n, out)
+    }
+
+    /// [`Pool::extend`] on `pool`, in `pieces` pieces.
+    #[cfg(feature = "threads")]
+    fn extend_in_pieces<T: Send>(
+        pool: &rayon::ThreadPool,
+        pieces: usize,
+        n: usize,
+        out: &mut Vec<T>,
+        f: impl Fn(Range<usize>, &mut Vec<T>) + Sync,
+    ) {
         let parts: Vec<Vec<T>> = pool.install(|| {
             (0..pieces)
                 .into_par_iter()
@@ -205,40 +257,48 @@ impl Pool {
     pub fn map_into<T: Send>(
         &self,
         n: usize,
-        min_piece: usize,
+        #[cfg_attr(not(feature = "threads"), allow(unused_variables))] min_piece: usize,
         out: &mut Vec<T>,
         f: impl Fn(usize) -> T + Sync + Send,
     ) {
-        match self.cut(n, min_piece) {
-            Some((pool, _)) => {
-                let min = if self.fine { 1 } else { min_piece };
-                pool.install(|| out.par_extend((0..n).into_par_iter().with_min_len(min).map(f)))
-            }
-            None => out.extend((0..n).map(f)),
+        #[cfg(feature = "threads")]
+        if let Some((pool, _)) = self.cut(n, min_piece) {
+            let min = if self.fine { 1 } else { min_piece };
+            return pool.install(|| out.par_extend((0..n).into_par_iter().with_min_len(min).map(f)));
         }
+        out.extend((0..n).map(f));
     }
 
     /// Calls `f(first, piece)` on consecutive pieces of `items` in parallel (`first`: the index
     /// of the piece's first item). For element-wise maps: each item's new value must depend on
     /// nothing another item's call writes.
-    pub fn for_each_mut<T: Send>(&self, items: &mut [T], min_piece: usize, f: impl Fn(usize, &mut [T]) + Sync) {
-        let Some((pool, pieces)) = self.cut(items.len(), min_piece) else { return f(0, items) };
-        let size = items.len().div_ceil(pieces);
-        pool.install(|| items.par_chunks_mut(size).enumerate().for_each(|(k, piece)| f(k * size, piece)));
+    pub fn for_each_mut<T: Send>(
+        &self,
+        items: &mut [T],
+        #[cfg_attr(not(feature = "threads"), allow(unused_variables))] min_piece: usize,
+        f: impl Fn(usize, &mut [T]) + Sync,
+    ) {
+        #[cfg(feature = "threads")]
+        if let Some((pool, pieces)) = self.cut(items.len(), min_piece) {
+            let size = items.len().div_ceil(pieces);
+            return pool.install(|| items.par_chunks_mut(size).enumerate().for_each(|(k, piece)| f(k * size, piece)));
+        }
+        f(0, items);
     }
 
     /// Sorts `v`. The order is total and no two items are equal unless identical (callers sort
     /// tuples that end in a unique index or are unique themselves), so the sorted slice is the
     /// same whichever algorithm and however many threads sorted it.
     pub fn sort_unstable<T: Ord + Send>(&self, v: &mut [T]) {
-        match self.cut(v.len(), MIN_PIECE) {
-            Some((pool, _)) => pool.install(|| v.par_sort_unstable()),
-            None => v.sort_unstable(),
+        #[cfg(feature = "threads")]
+        if let Some((pool, _)) = self.cut(v.len(), MIN_PIECE) {
+            return pool.install(|| v.par_sort_unstable());
         }
+        v.sort_unstable();
     }
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "threads"))]
 mod tests {
     use super::*;
 

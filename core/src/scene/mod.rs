@@ -131,62 +131,14 @@ impl Builder {
         })
     }
 
-    fn dim(&self, x: f64, entry: &str) -> Result<f64, SceneError> {
-        if x.is_finite() && x > 0.0 && x <= 1.0e6 {
-            Ok(x)
-        } else {
-            Err(self.err(entry, format!("{x} must be a positive finite length (m), at most 1e6")))
+    /// The shape `s` describes (`entry` names it in errors); a mesh only for a static class.
+    fn shape(&self, s: &ShapeSpec, entry: &str, is_static: bool) -> Result<Shape, SceneError> {
+        if matches!(s, ShapeSpec::Mesh { .. }) && !is_static {
+            return Err(self.err(entry, "a mesh can only belong to a static class"));
         }
-    }
-
-    fn shape(&self, s: &ShapeDef, entry: &str, is_static: bool) -> Result<Shape, SceneError> {
-        Ok(match s {
-            ShapeDef::Sphere { radius_m } => {
-                Shape::Sphere { radius: self.dim(*radius_m, &format!("{entry}.radius_m"))? }
-            }
-            ShapeDef::Capsule { half_height_m, radius_m } => Shape::Capsule {
-                half_height: self.dim(*half_height_m, &format!("{entry}.half_height_m"))?,
-                radius: self.dim(*radius_m, &format!("{entry}.radius_m"))?,
-            },
-            ShapeDef::Cuboid { half_extents_m } => {
-                for (k, h) in half_extents_m.iter().enumerate() {
-                    self.dim(*h, &format!("{entry}.half_extents_m[{k}]"))?;
-                }
-                Shape::Cuboid { half_extents: DVec3::from_array(*half_extents_m) }
-            }
-            ShapeDef::Ellipsoid { radii_m } => {
-                for (k, h) in radii_m.iter().enumerate() {
-                    self.dim(*h, &format!("{entry}.radii_m[{k}]"))?;
-                }
-                Shape::Ellipsoid { radii: DVec3::from_array(*radii_m) }
-            }
-            ShapeDef::Convex { points } => {
-                if let Some(k) = points.iter().position(|p| !finite3(*p)) {
-                    return Err(self.err(format!("{entry}.points[{k}]"), "not a finite point"));
-                }
-                let pts: Vec<DVec3> = points.iter().map(|p| DVec3::from_array(*p)).collect();
-                Shape::convex_hull(&pts).ok_or_else(|| {
-                    self.err(format!("{entry}.points"), "needs at least 4 points that are not coplanar")
-                })?
-            }
-            ShapeDef::Mesh { vertices, triangles } => {
-                if !is_static {
-                    return Err(self.err(entry, "a mesh can only belong to a static class"));
-                }
-                if let Some(k) = vertices.iter().position(|p| !finite3(*p)) {
-                    return Err(self.err(format!("{entry}.vertices[{k}]"), "not a finite point"));
-                }
-                if let Some(k) = triangles.iter().position(|t| t.iter().any(|&i| i as usize >= vertices.len())) {
-                    return Err(self.err(
-                        format!("{entry}.triangles[{k}]"),
-                        format!("names a vertex past the {} given", vertices.len()),
-                    ));
-                }
-                let v: Vec<_> = vertices.iter().map(|p| DVec3::from_array(*p).as_vec3()).collect();
-                let mesh = rapier3d::parry::shape::TriMesh::new(v, triangles.clone())
-                    .map_err(|e| self.err(entry, format!("invalid mesh: {e:?}")))?;
-                Shape::TriMesh(Arc::new(mesh))
-            }
+        Shape::from_spec(s).map_err(|e| {
+            let field = if e.field.is_empty() { entry.to_string() } else { format!("{entry}.{}", e.field) };
+            self.err(field, e.detail)
         })
     }
 

@@ -1,6 +1,7 @@
 //! The scene file format (TOML), as documented in SCENES.md. Every table refuses unknown keys,
 //! so a typo is an error naming the key rather than a silently ignored setting.
 
+pub use impact_protocol::ShapeSpec;
 use serde::Deserialize;
 
 /// A whole scene file.
@@ -201,46 +202,6 @@ pub struct ResponseDef {
     pub destroy: Option<DestroyWhich>,
 }
 
-/// A shape in a scene file.
-#[derive(Clone, Debug, Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
-pub enum ShapeDef {
-    /// Sphere.
-    Sphere {
-        /// Radius, m.
-        radius_m: f64,
-    },
-    /// Capsule along local y.
-    Capsule {
-        /// Half segment length, m.
-        half_height_m: f64,
-        /// Radius, m.
-        radius_m: f64,
-    },
-    /// Box.
-    Cuboid {
-        /// Half extents, m.
-        half_extents_m: [f64; 3],
-    },
-    /// Ellipsoid.
-    Ellipsoid {
-        /// Semi-axes, m.
-        radii_m: [f64; 3],
-    },
-    /// Convex hull of points (local frame, m).
-    Convex {
-        /// The points.
-        points: Vec<[f64; 3]>,
-    },
-    /// Triangle mesh (static classes only).
-    Mesh {
-        /// Vertices, local frame, m.
-        vertices: Vec<[f64; 3]>,
-        /// Triangles as vertex index triples.
-        triangles: Vec<[u32; 3]>,
-    },
-}
-
 /// `[[body]]`.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -248,7 +209,7 @@ pub struct BodyDef {
     /// Class name.
     pub class: String,
     /// Shape.
-    pub shape: ShapeDef,
+    pub shape: ShapeSpec,
     /// Centre, m.
     pub position: [f64; 3],
     /// Velocity, m/s.
@@ -273,7 +234,7 @@ pub struct ScatterDef {
     /// Class name.
     pub class: String,
     /// Shape of every body.
-    pub shape: ShapeDef,
+    pub shape: ShapeSpec,
     /// How many.
     pub count: u32,
     /// Region minimum corner, m.
@@ -298,7 +259,7 @@ pub struct ArrayDef {
     /// Class name.
     pub class: String,
     /// Shape of every body.
-    pub shape: ShapeDef,
+    pub shape: ShapeSpec,
     /// Centre of the first body, m.
     pub origin: [f64; 3],
     /// Bodies along x, y, z.
@@ -351,7 +312,7 @@ pub struct SpawnDef {
     pub avatar_class: Option<String>,
     /// Shape of avatars.
     #[serde(default)]
-    pub avatar_shape: Option<ShapeDef>,
+    pub avatar_shape: Option<ShapeSpec>,
     /// Avatars appear at random points of this box (min corner), m.
     #[serde(default)]
     pub region_min: [f64; 3],

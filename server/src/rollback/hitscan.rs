@@ -8,10 +8,10 @@
 //! input's tick is simulated (and again each time that tick is re-simulated, so a rollback that
 //! changed the past world changes the hit too) and hands the hits to the core inside the input.
 
-use crate::sim::input::{RewoundRay, TickInput};
-use crate::sim::ray::{self, Ray};
-use crate::sim::World;
 use glam::DVec3;
+use impact_core::sim::input::{RewoundRay, TickInput};
+use impact_core::sim::ray::{self, Ray};
+use impact_core::sim::World;
 use impact_protocol::{Action, Tick};
 
 /// Fills `rewound` for each input of `tick` whose view tick is in the past: its hitscan rays

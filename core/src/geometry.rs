@@ -7,10 +7,33 @@
 //! rotation never changes during a step.
 
 use glam::{DQuat, DVec3};
+use impact_protocol::ShapeSpec;
 use rapier3d::parry;
 use std::sync::Arc;
 
-/// A collision shape in its local frame. Lengths in metres.
+/// Largest dimension (radius, half extent, distance of a point from the centre) a shape may
+/// have, m.
+pub const MAX_DIM_M: f64 = 1.0e6;
+
+/// Why a [`ShapeSpec`] cannot become a [`Shape`].
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("{field}: {detail}")]
+pub struct ShapeError {
+    /// The field, relative to the shape (`radius_m`, `points[3]`), or empty for the whole shape.
+    pub field: String,
+    /// What is wrong.
+    pub detail: String,
+}
+
+fn shape_error(field: impl Into<String>, detail: impl Into<String>) -> ShapeError {
+    ShapeError { field: field.into(), detail: detail.into() }
+}
+
+/// A collision shape in its local frame, prepared for the tick. Lengths in metres.
+///
+/// Its own type beside the wire's [`ShapeSpec`] because it carries what is built once and kept:
+/// a hull's parry polyhedron, a mesh's BVH. [`Shape::from_spec`] and [`Shape::to_spec`] are the
+/// one conversion each way.
 #[derive(Clone, Debug)]
 pub enum Shape {
     /// A sphere centred on the origin.
@@ -118,6 +141,82 @@ impl Aabb {
 }
 
 impl Shape {
+    /// The shape `spec` describes, with its dimensions checked (positive, finite, at most
+    /// [`MAX_DIM_M`]), a hull's points not degenerate and a mesh's triangles naming its vertices.
+    pub fn from_spec(spec: &ShapeSpec) -> Result<Shape, ShapeError> {
+        let dim = |x: f64, field: String| {
+            if x.is_finite() && x > 0.0 && x <= MAX_DIM_M {
+                Ok(x)
+            } else {
+                Err(shape_error(field, format!("{x} must be a positive finite length (m), at most {MAX_DIM_M:e}")))
+            }
+        };
+        let dims = |v: &[f64; 3], name: &str| -> Result<DVec3, ShapeError> {
+            for (k, x) in v.iter().enumerate() {
+                dim(*x, format!("{name}[{k}]"))?;
+            }
+            Ok(DVec3::from_array(*v))
+        };
+        let points = |v: &[[f64; 3]], name: &str| -> Result<Vec<DVec3>, ShapeError> {
+            v.iter()
+                .enumerate()
+                .map(|(k, p)| {
+                    let p = DVec3::from_array(*p);
+                    if p.is_finite() && p.length() <= MAX_DIM_M {
+                        Ok(p)
+                    } else {
+                        Err(shape_error(format!("{name}[{k}]"), format!("not a finite point within {MAX_DIM_M:e} m")))
+                    }
+                })
+                .collect()
+        };
+        Ok(match spec {
+            ShapeSpec::Sphere { radius_m } => Shape::Sphere { radius: dim(*radius_m, "radius_m".into())? },
+            ShapeSpec::Capsule { half_height_m, radius_m } => Shape::Capsule {
+                half_height: dim(*half_height_m, "half_height_m".into())?,
+                radius: dim(*radius_m, "radius_m".into())?,
+            },
+            ShapeSpec::Cuboid { half_extents_m } => {
+                Shape::Cuboid { half_extents: dims(half_extents_m, "half_extents_m")? }
+            }
+            ShapeSpec::Ellipsoid { radii_m } => Shape::Ellipsoid { radii: dims(radii_m, "radii_m")? },
+            ShapeSpec::Convex { points: p } => Shape::convex_hull(&points(p, "points")?)
+                .ok_or_else(|| shape_error("points", "needs at least 4 points that are not coplanar"))?,
+            ShapeSpec::Mesh { vertices, triangles } => {
+                let v = points(vertices, "vertices")?;
+                if let Some(k) = triangles.iter().position(|t| t.iter().any(|&i| i as usize >= v.len())) {
+                    return Err(shape_error(
+                        format!("triangles[{k}]"),
+                        format!("names a vertex past the {} given", v.len()),
+                    ));
+                }
+                let v = v.iter().map(|p| p.as_vec3()).collect();
+                let mesh = parry::shape::TriMesh::new(v, triangles.clone())
+                    .map_err(|e| shape_error("", format!("invalid mesh: {e:?}")))?;
+                Shape::TriMesh(Arc::new(mesh))
+            }
+        })
+    }
+
+    /// The shape as data: [`Shape::from_spec`] of it gives this shape again (a mesh's vertices
+    /// come back as the f32 the mesh holds).
+    pub fn to_spec(&self) -> ShapeSpec {
+        match self {
+            Shape::Sphere { radius } => ShapeSpec::Sphere { radius_m: *radius },
+            Shape::Capsule { half_height, radius } => {
+                ShapeSpec::Capsule { half_height_m: *half_height, radius_m: *radius }
+            }
+            Shape::Cuboid { half_extents } => ShapeSpec::Cuboid { half_extents_m: half_extents.to_array() },
+            Shape::Ellipsoid { radii } => ShapeSpec::Ellipsoid { radii_m: radii.to_array() },
+            // The same points give the same hull: `convex_hull` keeps them as given.
+            Shape::Convex(hull) => ShapeSpec::Convex { points: hull.points.iter().map(|p| p.to_array()).collect() },
+            Shape::TriMesh(mesh) => ShapeSpec::Mesh {
+                vertices: mesh.vertices().iter().map(|p| p.as_dvec3().to_array()).collect(),
+                triangles: mesh.indices().to_vec(),
+            },
+        }
+    }
+
     /// The family this shape belongs to.
     pub fn kind(&self) -> ShapeKind {
         match self {
