@@ -24,6 +24,8 @@ use impact_protocol::{
 use std::collections::BTreeMap;
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
+use std::sync::atomic::AtomicU64;
+use std::sync::atomic::Ordering::Relaxed;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use zenoh::Wait;
@@ -363,62 +365,45 @@ fn open_sessions(cfg: &LoadConfig) -> anyhow::Result<Vec<zenoh::Session>> {
     Ok(sessions)
 }
 
-/// Runs the load and returns its report.
-pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
-    let n = cfg.clients as usize;
-    let sessions = open_sessions(cfg)?;
-    let inbox: Arc<Mutex<Vec<(Instant, Inbound)>>> = Arc::new(Mutex::new(Vec::new()));
-    const INBOX_MAX: usize = 1 << 20;
-    let dropped_inbox = Arc::new(std::sync::atomic::AtomicU64::new(0));
-    // State stream bytes and frames received by every client, counted without decoding.
-    let state_bytes = Arc::new(std::sync::atomic::AtomicU64::new(0));
-    let state_frames = Arc::new(std::sync::atomic::AtomicU64::new(0));
-    let mut keep = Vec::new(); // subscribers and tokens live as long as the run
-    let mut clients: Vec<Client> = Vec::with_capacity(n);
-    let start = Instant::now();
-    for k in 0..n {
-        let id = ClientId(cfg.first_client + k as u32);
-        let s = &sessions[k % sessions.len()];
-        for pattern in [keys::CLIENT_ACK, keys::CLIENT_EVENTS] {
-            let inbox = inbox.clone();
-            let dropped = dropped_inbox.clone();
-            let sub = s
-                .declare_subscriber(pattern.key(&cfg.world, Some(id)))
-                .callback(move |sample| {
-                    if let Ok(msg) = crate::net::decode_server(&sample) {
-                        let mut q = inbox.lock().unwrap_or_else(|e| e.into_inner());
-                        if q.len() < INBOX_MAX {
-                            q.push((Instant::now(), Inbound::Msg(k, msg)));
-                        } else {
-                            dropped.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                        }
-                    }
-                })
-                .wait()
-                .map_err(|e| anyhow::anyhow!("subscribing: {e}"))?;
-            keep.push(sub);
-        }
-        if cfg.state {
-            let (bytes, frames) = (state_bytes.clone(), state_frames.clone());
-            let sub = s
-                .declare_subscriber(keys::CLIENT_STATE.key(&cfg.world, Some(id)))
-                .callback(move |sample| {
-                    bytes.fetch_add(sample.payload().len() as u64, std::sync::atomic::Ordering::Relaxed);
-                    frames.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                })
-                .wait()
-                .map_err(|e| anyhow::anyhow!("subscribing: {e}"))?;
-            keep.push(sub);
-        }
-        let behaviour = match cfg.behaviour {
-            Behaviour::Mixed => [Behaviour::Wander, Behaviour::Chase, Behaviour::Shooter][k % 3],
-            b => b,
+/// Messages the callbacks queue for the run loop: at most this many (past it they are dropped and
+/// counted), about a second of 1,000 busy clients.
+const INBOX_MAX: usize = 1 << 20;
+
+/// What the callbacks hand the run loop, with when each arrived.
+type Inbox = Arc<Mutex<Vec<(Instant, Inbound)>>>;
+
+/// A run's Zenoh side: the sessions, and the subscriptions and presence tokens that live as long
+/// as the run, with what their callbacks fill.
+struct Wiring {
+    sessions: Vec<zenoh::Session>,
+    inbox: Inbox,
+    /// Messages the inbox had no room for.
+    inbox_dropped: Arc<AtomicU64>,
+    /// State stream bytes and frames received by every client, counted without decoding.
+    state_bytes: Arc<AtomicU64>,
+    state_frames: Arc<AtomicU64>,
+    subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
+    tokens: Vec<zenoh::liveliness::LivelinessToken>,
+}
+
+impl Wiring {
+    /// Opens the sessions and subscribes each client to its answers, events and (with `state`)
+    /// state stream, and the run to the stats.
+    fn connect(cfg: &LoadConfig, clients: &[Client]) -> anyhow::Result<Wiring> {
+        let mut w = Wiring {
+            sessions: open_sessions(cfg)?,
+            inbox: Arc::new(Mutex::new(Vec::new())),
+            inbox_dropped: Arc::new(AtomicU64::new(0)),
+            state_bytes: Arc::new(AtomicU64::new(0)),
+            state_frames: Arc::new(AtomicU64::new(0)),
+            subscribers: Vec::new(),
+            tokens: Vec::new(),
         };
-        clients.push(Client::new(id, behaviour, start));
-    }
-    let stats_sub = {
-        let inbox = inbox.clone();
-        sessions[0]
+        for (k, c) in clients.iter().enumerate() {
+            w.subscribe_client(cfg, k, c.id)?;
+        }
+        let inbox = w.inbox.clone();
+        let stats = w.sessions[0]
             .declare_subscriber(keys::STATS.key(&cfg.world, None))
             .callback(move |sample| {
                 if let Ok(ServerMessage::Stats(s)) = crate::net::decode_server(&sample) {
@@ -426,200 +411,145 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
                 }
             })
             .wait()
-            .map_err(|e| anyhow::anyhow!("subscribing: {e}"))?
-    };
-    // Presence last, so every subscription is in place when the welcome comes.
-    let mut tokens = Vec::with_capacity(n);
-    for (k, c) in clients.iter().enumerate() {
-        let t = sessions[k % sessions.len()]
-            .liveliness()
-            .declare_token(keys::PRESENCE.key(&cfg.world, Some(c.id)))
-            .wait()
-            .map_err(|e| anyhow::anyhow!("presence token: {e}"))?;
-        tokens.push(t);
+            .map_err(|e| anyhow::anyhow!("subscribing: {e}"))?;
+        w.subscribers.push(stats);
+        Ok(w)
     }
 
-    let mut rng = Rng::new(cfg.seed);
-    let mut up: DelayLine<(usize, u32, Vec<u8>)> = DelayLine::new(1 << 20);
-    let mut down: DelayLine<Inbound> = DelayLine::new(1 << 21);
-    let mut latency = Histogram::<u64>::new_with_bounds(1, 60_000_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let mut depth = Histogram::<u64>::new_with_bounds(1, 100_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let mut r = Report {
-        clients: cfg.clients,
-        sessions: sessions.len() as u32,
-        duration_s: cfg.duration.as_secs_f64(),
-        ..Report::default()
-    };
-    let period = Duration::from_secs_f64(1.0 / cfg.input_hz.max(0.1));
-    let load_start = Instant::now();
-    let load_end = load_start + cfg.duration;
-    let stop = load_end + cfg.settle;
-    let mut last_progress = Instant::now();
+    /// The session client `k` shares.
+    fn session(&self, k: usize) -> &zenoh::Session {
+        &self.sessions[k % self.sessions.len()]
+    }
+
+    fn subscribe_client(&mut self, cfg: &LoadConfig, k: usize, id: ClientId) -> anyhow::Result<()> {
+        for pattern in [keys::CLIENT_ACK, keys::CLIENT_EVENTS] {
+            let inbox = self.inbox.clone();
+            let dropped = self.inbox_dropped.clone();
+            let sub = self
+                .session(k)
+                .declare_subscriber(pattern.key(&cfg.world, Some(id)))
+                .callback(move |sample| {
+                    if let Ok(msg) = crate::net::decode_server(&sample) {
+                        let mut q = inbox.lock().unwrap_or_else(|e| e.into_inner());
+                        if q.len() < INBOX_MAX {
+                            q.push((Instant::now(), Inbound::Msg(k, msg)));
+                        } else {
+                            dropped.fetch_add(1, Relaxed);
+                        }
+                    }
+                })
+                .wait()
+                .map_err(|e| anyhow::anyhow!("subscribing: {e}"))?;
+            self.subscribers.push(sub);
+        }
+        if cfg.state {
+            let (bytes, frames) = (self.state_bytes.clone(), self.state_frames.clone());
+            let sub = self
+                .session(k)
+                .declare_subscriber(keys::CLIENT_STATE.key(&cfg.world, Some(id)))
+                .callback(move |sample| {
+                    bytes.fetch_add(sample.payload().len() as u64, Relaxed);
+                    frames.fetch_add(1, Relaxed);
+                })
+                .wait()
+                .map_err(|e| anyhow::anyhow!("subscribing: {e}"))?;
+            self.subscribers.push(sub);
+        }
+        Ok(())
+    }
+
+    /// Declares every client's presence: last, so every subscription is in place when the
+    /// welcome comes.
+    fn declare_presence(&mut self, cfg: &LoadConfig, clients: &[Client]) -> anyhow::Result<()> {
+        for (k, c) in clients.iter().enumerate() {
+            let t = self
+                .session(k)
+                .liveliness()
+                .declare_token(keys::PRESENCE.key(&cfg.world, Some(c.id)))
+                .wait()
+                .map_err(|e| anyhow::anyhow!("presence token: {e}"))?;
+            self.tokens.push(t);
+        }
+        Ok(())
+    }
+
+    /// State stream bytes and frames counted so far.
+    fn state_counts(&self) -> (u64, u64) {
+        (self.state_bytes.load(Relaxed), self.state_frames.load(Relaxed))
+    }
+
+    /// Drops the tokens and subscriptions, then closes the sessions.
+    fn close(self) {
+        drop(self.tokens);
+        drop(self.subscribers);
+        for s in self.sessions {
+            let _ = s.close().wait();
+        }
+    }
+}
+
+/// The run loop's state: the clients, both delay lines, and the figures gathered.
+struct Run<'a> {
+    cfg: &'a LoadConfig,
+    clients: Vec<Client>,
+    rng: Rng,
+    up: DelayLine<(usize, u32, Vec<u8>)>,
+    down: DelayLine<Inbound>,
+    /// Input round trips, microseconds.
+    latency: Histogram<u64>,
+    /// How many ticks back each correction reached.
+    depth: Histogram<u64>,
+    /// Every tick's duration the server reported during the load, microseconds (1 us to 1 h).
+    server_ticks: Histogram<u64>,
+    r: Report,
+    /// Time between one client's inputs.
+    period: Duration,
+    load_start: Instant,
+    load_end: Instant,
+    server_stopped: bool,
+    input_keys: Vec<String>,
+}
+
+/// Runs the load and returns its report.
+pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
+    let start = Instant::now();
+    let clients: Vec<Client> = (0..cfg.clients as usize)
+        .map(|k| {
+            let id = ClientId(cfg.first_client + k as u32);
+            let behaviour = match cfg.behaviour {
+                Behaviour::Mixed => [Behaviour::Wander, Behaviour::Chase, Behaviour::Shooter][k % 3],
+                b => b,
+            };
+            Client::new(id, behaviour, start)
+        })
+        .collect();
+    let mut wiring = Wiring::connect(cfg, &clients)?;
+    wiring.declare_presence(cfg, &clients)?;
+    let mut run = Run::new(cfg, clients, wiring.sessions.len())?;
     // State streams are counted over the load alone.
-    let relaxed = std::sync::atomic::Ordering::Relaxed;
-    state_bytes.store(0, relaxed);
-    state_frames.store(0, relaxed);
+    wiring.state_bytes.store(0, Relaxed);
+    wiring.state_frames.store(0, Relaxed);
     let mut state_at_end = None;
-    // Every tick's duration the server reported during the load, microseconds (1 us to 1 h).
-    let mut server_ticks = Histogram::<u64>::new_with_bounds(1, 3_600_000_000, 3).expect("valid bounds");
     let tty = std::io::stderr().is_terminal();
-    let input_keys: Vec<String> = clients.iter().map(|c| keys::INPUT.key(&cfg.world, Some(c.id))).collect();
-    let mut server_stopped = false;
+    let mut last_progress = Instant::now();
+    let stop = run.load_end + cfg.settle;
     loop {
         let now = Instant::now();
         if now >= stop {
             break;
         }
-        if now >= load_end && state_at_end.is_none() {
-            state_at_end = Some((state_bytes.load(relaxed), state_frames.load(relaxed)));
+        if now >= run.load_end && state_at_end.is_none() {
+            state_at_end = Some(wiring.state_counts());
         }
-        // Downlink: received messages enter the delay line; due ones reach their client.
-        let arrived = std::mem::take(&mut *inbox.lock().unwrap_or_else(|e| e.into_inner()));
-        for (at, m) in arrived {
-            down.send(at, &cfg.downlink, &mut rng, m);
+        run.downlink(&wiring.inbox, now);
+        if now < run.load_end {
+            run.act(now);
         }
-        let cut = cfg.faults.partitioned(now.saturating_duration_since(load_start));
-        while let Some(m) = if cut { None } else { down.pop_due(now) } {
-            match m {
-                Inbound::Stats(s) => {
-                    r.server_overruns = s.overruns;
-                    r.server_queue_depth_max = r.server_queue_depth_max.max(s.queue_depth_max);
-                    if now < load_end {
-                        // The server's seconds under load: every tick's duration, and the
-                        // rollbacks they counted.
-                        for t in &s.tick_ms {
-                            let _ = server_ticks.record((f64::from(*t) * 1e3).round().max(1.0) as u64);
-                        }
-                        r.server_rollbacks += u64::from(s.rollbacks);
-                        r.server_rollback_depth_max = r.server_rollback_depth_max.max(s.rollback_depth_max);
-                    }
-                    // Once a second every client hears the server's tick, even one that no
-                    // event concerns.
-                    for c in clients.iter_mut() {
-                        r.clock_resyncs += u64::from(c.observe(s.tick, now));
-                    }
-                }
-                Inbound::Msg(k, msg) => {
-                    let c = &mut clients[k];
-                    match msg {
-                        ServerMessage::Welcome(w) => {
-                            if c.avatar.is_none() && w.avatar.is_some() {
-                                r.clients_welcomed += 1;
-                            }
-                            c.avatar = w.avatar;
-                            c.clock = Some((w.tick, now, w.tick_hz));
-                            // Spread the clients' actions over one period.
-                            c.next_action = now + period.mul_f64(k as f64 / n.max(1) as f64);
-                        }
-                        ServerMessage::Ack(a) => {
-                            r.clock_resyncs += u64::from(c.observe(a.server_tick, now));
-                            c.margins.record(a.margin_ticks);
-                            c.recommend(a.lead_ticks);
-                            r.answers_unexpected += u64::from(!c.answered(a.seq));
-                            if cfg.faults.duplicate > 0.0 && !c.acked.insert(a.seq) {
-                                r.answers_unexpected += 1; // a duplicate delivery was accepted
-                            }
-                            if let Some((sent, _)) = c.sent.remove(&a.seq) {
-                                r.acks += 1;
-                                let _ = latency.record((now - sent).as_micros().max(1) as u64);
-                            }
-                        }
-                        ServerMessage::Reject(j) => {
-                            if let Some(seq) = j.seq {
-                                let view = c.sent.remove(&seq).and_then(|(_, v)| v);
-                                if let (RejectReason::Future, Some(t), Some(v), Some(n)) =
-                                    (j.reason, j.tick, view, j.newest_tick)
-                                {
-                                    c.back_off(t, v, n);
-                                }
-                                // An accepted input whose entity went away before its tick was
-                                // re-simulated is told so by a second message (PROTOCOL.md).
-                                let after_ack =
-                                    matches!(j.reason, RejectReason::UnknownEntity | RejectReason::NotOwner);
-                                r.answers_unexpected += u64::from(!c.answered(seq) && !after_ack);
-                            } else {
-                                r.answers_unexpected += 1;
-                            }
-                            *r.rejects.entry(j.reason.name().to_string()).or_insert(0) += 1;
-                        }
-                        ServerMessage::Events(b) => {
-                            r.clock_resyncs += u64::from(c.observe(b.tick, now));
-                            r.events_received += b.events.len() as u64;
-                            c.view.events(&b);
-                        }
-                        ServerMessage::Corrections(cb) => {
-                            r.corrections += 1;
-                            c.corrections += 1;
-                            if let Some(t) = c.tick_estimate(now) {
-                                let _ = depth.record(u64::from(t.0.saturating_sub(cb.tick.0)).max(1));
-                            }
-                            c.view.correct(&cb);
-                        }
-                        ServerMessage::Confirmed(b) => {
-                            c.view.confirm(&b);
-                        }
-                        _ => {}
-                    }
-                }
-            }
-        }
-        // Clients act; inputs enter the uplink delay line.
-        if now < load_end {
-            for (k, c) in clients.iter_mut().enumerate() {
-                if c.next_action > now {
-                    continue;
-                }
-                c.next_action += period;
-                if let Some(input) = act(c, &mut rng, cfg.timing, now) {
-                    let (seq, view) = (input.seq, input.view_tick);
-                    if let Ok(bytes) = impact_protocol::encode(&ClientMessage::Input(input), cfg.encoding) {
-                        r.inputs_sent += 1;
-                        let twice = rng.unit() < cfg.faults.duplicate;
-                        if up.send(now, &cfg.uplink, &mut rng, (k, seq, bytes.clone())) {
-                            c.sent.insert(seq, (now, view));
-                            if twice && up.send(now, &Link { loss: 0.0, ..cfg.uplink }, &mut rng, (k, seq, bytes)) {
-                                r.inputs_duplicated += 1;
-                            }
-                        }
-                    }
-                }
-            }
-        }
-        // Faults: a partition holds both lines (they are FIFO, so holding is delaying); a stall
-        // stops the server process.
-        let since = now.saturating_duration_since(load_start);
-        let cut = cfg.faults.partitioned(since);
-        if let Some(pid) = cfg.faults.stall_pid {
-            let want = cfg.faults.stalled(since);
-            if want != server_stopped {
-                signal(pid, want);
-                server_stopped = want;
-                r.server_stalls += u64::from(want);
-            }
-        }
-        while let Some((k, seq, bytes)) = if cut { None } else { up.pop_due(now) } {
-            let s = &sessions[k % sessions.len()];
-            if s.put(&input_keys[k], bytes).encoding(cfg.encoding.zenoh_tag()).wait().is_ok() {
-                r.inputs_delivered += 1;
-                *clients[k].owed.entry(seq).or_insert(0) += 1;
-            }
-        }
+        run.uplink(&wiring, now);
         if last_progress.elapsed() >= Duration::from_secs(1) {
             last_progress = Instant::now();
-            let t = load_start.elapsed().as_secs_f64();
-            let line = format!(
-                "  {t:5.1} s | welcomed {}/{} | inputs {} | acks {} | p99 {:.1} ms | events {} | corrections {} | views ok {} bad {}",
-                r.clients_welcomed,
-                cfg.clients,
-                r.inputs_sent,
-                r.acks,
-                latency.value_at_quantile(0.99) as f64 / 1000.0,
-                r.events_received,
-                r.corrections,
-                clients.iter().map(|c| c.view.matched).sum::<u64>(),
-                clients.iter().map(|c| c.view.mismatched).sum::<u64>()
-            );
             if cfg.progress {
+                let line = run.progress_line();
                 if tty {
                     eprint!("\r{line}   ");
                 } else {
@@ -632,63 +562,254 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
     if cfg.progress && tty {
         eprintln!();
     }
-    r.inputs_lost_in_network = up.lost;
-    if server_stopped {
+    if run.server_stopped {
         if let Some(pid) = cfg.faults.stall_pid {
             signal(pid, false);
         }
     }
-    r.inputs_unanswered = clients.iter().map(|c| c.owed.values().map(|&n| u64::from(n)).sum::<u64>()).sum();
-    r.latency_ms_p50 = latency.value_at_quantile(0.5) as f64 / 1000.0;
-    r.latency_ms_p99 = latency.value_at_quantile(0.99) as f64 / 1000.0;
-    r.latency_ms_max = latency.max() as f64 / 1000.0;
-    r.events_per_s = r.events_received as f64 / cfg.duration.as_secs_f64().max(1e-9);
-    r.corrections_per_s = r.corrections as f64 / cfg.duration.as_secs_f64().max(1e-9);
-    r.correction_depth_p50 = depth.value_at_quantile(0.5) as f64;
-    r.correction_depth_max = depth.max() as f64;
-    r.correction_depth_p99 = depth.value_at_quantile(0.99) as f64;
-    let (bytes, frames) = state_at_end.unwrap_or((state_bytes.load(relaxed), state_frames.load(relaxed)));
-    r.state_frames = frames;
-    r.state_bytes_per_client_s = bytes as f64 / (f64::from(cfg.clients.max(1)) * cfg.duration.as_secs_f64().max(1e-9));
-    r.server_ticks_measured = server_ticks.len();
-    if !server_ticks.is_empty() {
-        r.server_tick_ms_p50 = server_ticks.value_at_quantile(0.5) as f64 / 1e3;
-        r.server_tick_ms_p99 = server_ticks.value_at_quantile(0.99) as f64 / 1e3;
-        r.server_tick_ms_max = server_ticks.max() as f64 / 1e3;
-    }
-    r.server_rollbacks_per_s = r.server_rollbacks as f64 / cfg.duration.as_secs_f64().max(1e-9);
-    r.timing = Some(cfg.timing);
-    let mut all = Margins::default();
-    for c in &clients {
-        all.merge(&c.margins);
-        r.per_client.push(crate::report::ClientTiming {
-            client: c.id.0,
-            margin_ticks_p1: c.margins.quantile(0.01),
-            margin_ticks_p50: c.margins.quantile(0.5),
-            margin_ticks_p99: c.margins.quantile(0.99),
-            rollbacks_caused: c.margins.late(),
-            corrections: c.corrections,
-        });
-    }
-    r.margin_ticks_p1 = all.quantile(0.01);
-    r.margin_ticks_p50 = all.quantile(0.5);
-    r.margin_ticks_p99 = all.quantile(0.99);
-    r.rollbacks_caused = all.late();
-    r.rollbacks_caused_per_s = r.rollbacks_caused as f64 / cfg.duration.as_secs_f64().max(1e-9);
-    r.views_matched = clients.iter().map(|c| c.view.matched).sum();
-    r.views_mismatched = clients.iter().map(|c| c.view.mismatched).sum();
-    let bucket = 5_000u64;
-    let top = latency.max().div_ceil(bucket).min(400);
-    r.latency_histogram =
-        (1..=top).map(|b| (b as f64 * 5.0, latency.count_between((b - 1) * bucket + 1, b * bucket))).collect();
-    drop(tokens);
-    drop(stats_sub);
-    drop(keep);
-    for s in sessions {
-        let _ = s.close().wait();
-    }
+    let r = run.report(state_at_end.unwrap_or_else(|| wiring.state_counts()));
+    wiring.close();
     let _ = std::io::stderr().flush();
     Ok(r)
+}
+
+impl Run<'_> {
+    fn new(cfg: &LoadConfig, clients: Vec<Client>, sessions: usize) -> anyhow::Result<Run<'_>> {
+        let load_start = Instant::now();
+        Ok(Run {
+            cfg,
+            input_keys: clients.iter().map(|c| keys::INPUT.key(&cfg.world, Some(c.id))).collect(),
+            clients,
+            rng: Rng::new(cfg.seed),
+            up: DelayLine::new(1 << 20),
+            down: DelayLine::new(1 << 21),
+            latency: Histogram::new_with_bounds(1, 60_000_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?,
+            depth: Histogram::new_with_bounds(1, 100_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?,
+            server_ticks: Histogram::new_with_bounds(1, 3_600_000_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?,
+            r: Report {
+                clients: cfg.clients,
+                sessions: sessions as u32,
+                duration_s: cfg.duration.as_secs_f64(),
+                ..Report::default()
+            },
+            period: Duration::from_secs_f64(1.0 / cfg.input_hz.max(0.1)),
+            load_start,
+            load_end: load_start + cfg.duration,
+            server_stopped: false,
+        })
+    }
+
+    /// Received messages enter the downlink delay line; due ones reach their client (none while
+    /// a partition holds the line).
+    fn downlink(&mut self, inbox: &Inbox, now: Instant) {
+        let arrived = std::mem::take(&mut *inbox.lock().unwrap_or_else(|e| e.into_inner()));
+        for (at, m) in arrived {
+            self.down.send(at, &self.cfg.downlink, &mut self.rng, m);
+        }
+        let cut = self.cfg.faults.partitioned(now.saturating_duration_since(self.load_start));
+        while let Some(m) = if cut { None } else { self.down.pop_due(now) } {
+            match m {
+                Inbound::Stats(s) => self.on_stats(&s, now),
+                Inbound::Msg(k, msg) => self.on_message(k, msg, now),
+            }
+        }
+    }
+
+    fn on_stats(&mut self, s: &impact_protocol::ServerStats, now: Instant) {
+        let r = &mut self.r;
+        r.server_overruns = s.overruns;
+        r.server_queue_depth_max = r.server_queue_depth_max.max(s.queue_depth_max);
+        if now < self.load_end {
+            // The server's seconds under load: every tick's duration, and the rollbacks they
+            // counted.
+            for t in &s.tick_ms {
+                let _ = self.server_ticks.record((f64::from(*t) * 1e3).round().max(1.0) as u64);
+            }
+            r.server_rollbacks += u64::from(s.rollbacks);
+            r.server_rollback_depth_max = r.server_rollback_depth_max.max(s.rollback_depth_max);
+        }
+        // Once a second every client hears the server's tick, even one that no event concerns.
+        for c in self.clients.iter_mut() {
+            r.clock_resyncs += u64::from(c.observe(s.tick, now));
+        }
+    }
+
+    fn on_message(&mut self, k: usize, msg: ServerMessage, now: Instant) {
+        let (r, c) = (&mut self.r, &mut self.clients[k]);
+        match msg {
+            ServerMessage::Welcome(w) => {
+                if c.avatar.is_none() && w.avatar.is_some() {
+                    r.clients_welcomed += 1;
+                }
+                c.avatar = w.avatar;
+                c.clock = Some((w.tick, now, w.tick_hz));
+                // Spread the clients' actions over one period.
+                c.next_action = now + self.period.mul_f64(k as f64 / self.cfg.clients.max(1) as f64);
+            }
+            ServerMessage::Ack(a) => {
+                r.clock_resyncs += u64::from(c.observe(a.server_tick, now));
+                c.margins.record(a.margin_ticks);
+                c.recommend(a.lead_ticks);
+                r.answers_unexpected += u64::from(!c.answered(a.seq));
+                if self.cfg.faults.duplicate > 0.0 && !c.acked.insert(a.seq) {
+                    r.answers_unexpected += 1; // a duplicate delivery was accepted
+                }
+                if let Some((sent, _)) = c.sent.remove(&a.seq) {
+                    r.acks += 1;
+                    let _ = self.latency.record((now - sent).as_micros().max(1) as u64);
+                }
+            }
+            ServerMessage::Reject(j) => {
+                if let Some(seq) = j.seq {
+                    let view = c.sent.remove(&seq).and_then(|(_, v)| v);
+                    if let (RejectReason::Future, Some(t), Some(v), Some(n)) = (j.reason, j.tick, view, j.newest_tick) {
+                        c.back_off(t, v, n);
+                    }
+                    // An accepted input whose entity went away before its tick was re-simulated
+                    // is told so by a second message (PROTOCOL.md).
+                    let after_ack = matches!(j.reason, RejectReason::UnknownEntity | RejectReason::NotOwner);
+                    r.answers_unexpected += u64::from(!c.answered(seq) && !after_ack);
+                } else {
+                    r.answers_unexpected += 1;
+                }
+                *r.rejects.entry(j.reason.name().to_string()).or_insert(0) += 1;
+            }
+            ServerMessage::Events(b) => {
+                r.clock_resyncs += u64::from(c.observe(b.tick, now));
+                r.events_received += b.events.len() as u64;
+                c.view.events(&b);
+            }
+            ServerMessage::Corrections(cb) => {
+                r.corrections += 1;
+                c.corrections += 1;
+                if let Some(t) = c.tick_estimate(now) {
+                    let _ = self.depth.record(u64::from(t.0.saturating_sub(cb.tick.0)).max(1));
+                }
+                c.view.correct(&cb);
+            }
+            ServerMessage::Confirmed(b) => {
+                c.view.confirm(&b);
+            }
+            _ => {}
+        }
+    }
+
+    /// Clients whose turn it is act; their inputs enter the uplink delay line (some twice, when
+    /// duplicates are injected).
+    fn act(&mut self, now: Instant) {
+        let cfg = self.cfg;
+        for (k, c) in self.clients.iter_mut().enumerate() {
+            if c.next_action > now {
+                continue;
+            }
+            c.next_action += self.period;
+            let Some(input) = act(c, &mut self.rng, cfg.timing, now) else { continue };
+            let (seq, view) = (input.seq, input.view_tick);
+            let Ok(bytes) = impact_protocol::encode(&ClientMessage::Input(input), cfg.encoding) else { continue };
+            self.r.inputs_sent += 1;
+            let twice = self.rng.unit() < cfg.faults.duplicate;
+            if self.up.send(now, &cfg.uplink, &mut self.rng, (k, seq, bytes.clone())) {
+                c.sent.insert(seq, (now, view));
+                if twice && self.up.send(now, &Link { loss: 0.0, ..cfg.uplink }, &mut self.rng, (k, seq, bytes)) {
+                    self.r.inputs_duplicated += 1;
+                }
+            }
+        }
+    }
+
+    /// Faults first: a partition holds both lines (they are FIFO, so holding is delaying); a
+    /// stall stops the server process. Then the inputs due are put.
+    fn uplink(&mut self, wiring: &Wiring, now: Instant) {
+        let faults = &self.cfg.faults;
+        let since = now.saturating_duration_since(self.load_start);
+        let cut = faults.partitioned(since);
+        if let Some(pid) = faults.stall_pid {
+            let want = faults.stalled(since);
+            if want != self.server_stopped {
+                signal(pid, want);
+                self.server_stopped = want;
+                self.r.server_stalls += u64::from(want);
+            }
+        }
+        while let Some((k, seq, bytes)) = if cut { None } else { self.up.pop_due(now) } {
+            let put = wiring.session(k).put(&self.input_keys[k], bytes).encoding(self.cfg.encoding.zenoh_tag());
+            if put.wait().is_ok() {
+                self.r.inputs_delivered += 1;
+                *self.clients[k].owed.entry(seq).or_insert(0) += 1;
+            }
+        }
+    }
+
+    fn progress_line(&self) -> String {
+        let r = &self.r;
+        format!(
+            "  {:5.1} s | welcomed {}/{} | inputs {} | acks {} | p99 {:.1} ms | events {} | corrections {} | views ok {} bad {}",
+            self.load_start.elapsed().as_secs_f64(),
+            r.clients_welcomed,
+            self.cfg.clients,
+            r.inputs_sent,
+            r.acks,
+            self.latency.value_at_quantile(0.99) as f64 / 1000.0,
+            r.events_received,
+            r.corrections,
+            self.clients.iter().map(|c| c.view.matched).sum::<u64>(),
+            self.clients.iter().map(|c| c.view.mismatched).sum::<u64>()
+        )
+    }
+
+    /// The report: what was counted, with the quantiles, rates and per-client figures drawn from
+    /// it. `state` is the state streams' (bytes, frames) at the end of the load.
+    fn report(self, state: (u64, u64)) -> Report {
+        let cfg = self.cfg;
+        let (latency, depth, server_ticks, clients) = (&self.latency, &self.depth, &self.server_ticks, &self.clients);
+        let mut r = self.r;
+        r.inputs_lost_in_network = self.up.lost;
+        r.inputs_unanswered = clients.iter().map(|c| c.owed.values().map(|&n| u64::from(n)).sum::<u64>()).sum();
+        r.latency_ms_p50 = latency.value_at_quantile(0.5) as f64 / 1000.0;
+        r.latency_ms_p99 = latency.value_at_quantile(0.99) as f64 / 1000.0;
+        r.latency_ms_max = latency.max() as f64 / 1000.0;
+        r.events_per_s = r.events_received as f64 / cfg.duration.as_secs_f64().max(1e-9);
+        r.corrections_per_s = r.corrections as f64 / cfg.duration.as_secs_f64().max(1e-9);
+        r.correction_depth_p50 = depth.value_at_quantile(0.5) as f64;
+        r.correction_depth_max = depth.max() as f64;
+        r.correction_depth_p99 = depth.value_at_quantile(0.99) as f64;
+        let (bytes, frames) = state;
+        r.state_frames = frames;
+        r.state_bytes_per_client_s =
+            bytes as f64 / (f64::from(cfg.clients.max(1)) * cfg.duration.as_secs_f64().max(1e-9));
+        r.server_ticks_measured = server_ticks.len();
+        if !server_ticks.is_empty() {
+            r.server_tick_ms_p50 = server_ticks.value_at_quantile(0.5) as f64 / 1e3;
+            r.server_tick_ms_p99 = server_ticks.value_at_quantile(0.99) as f64 / 1e3;
+            r.server_tick_ms_max = server_ticks.max() as f64 / 1e3;
+        }
+        r.server_rollbacks_per_s = r.server_rollbacks as f64 / cfg.duration.as_secs_f64().max(1e-9);
+        r.timing = Some(cfg.timing);
+        let mut all = Margins::default();
+        for c in clients {
+            all.merge(&c.margins);
+            r.per_client.push(crate::report::ClientTiming {
+                client: c.id.0,
+                margin_ticks_p1: c.margins.quantile(0.01),
+                margin_ticks_p50: c.margins.quantile(0.5),
+                margin_ticks_p99: c.margins.quantile(0.99),
+                rollbacks_caused: c.margins.late(),
+                corrections: c.corrections,
+            });
+        }
+        r.margin_ticks_p1 = all.quantile(0.01);
+        r.margin_ticks_p50 = all.quantile(0.5);
+        r.margin_ticks_p99 = all.quantile(0.99);
+        r.rollbacks_caused = all.late();
+        r.rollbacks_caused_per_s = r.rollbacks_caused as f64 / cfg.duration.as_secs_f64().max(1e-9);
+        r.views_matched = clients.iter().map(|c| c.view.matched).sum();
+        r.views_mismatched = clients.iter().map(|c| c.view.mismatched).sum();
+        let bucket = 5_000u64;
+        let top = latency.max().div_ceil(bucket).min(400);
+        r.latency_histogram =
+            (1..=top).map(|b| (b as f64 * 5.0, latency.count_between((b - 1) * bucket + 1, b * bucket))).collect();
+        r
+    }
 }
 
 #[cfg(test)]

@@ -12,6 +12,8 @@
 //!   from, one concept per module.
 //! - [`scene`]: the scene file format and loader (SCENES.md).
 
+#![warn(missing_docs)]
+
 pub mod broadphase;
 pub mod geometry;
 pub mod narrow;

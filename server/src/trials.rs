@@ -185,126 +185,46 @@ fn range(rng: &mut SplitMix64, r: (f64, f64)) -> f64 {
 /// body to the other).
 type Pending = (usize, Option<usize>, Option<f64>, DVec3, DVec3);
 
+/// A trial set on its way: the scene text of its statics and terrain, and its balls with what
+/// each must do, drawn from one seeded generator in a fixed order.
+struct Draft<'a> {
+    s: &'a Setup,
+    rng: SplitMix64,
+    /// The tick, s.
+    dt: f64,
+    /// `[[body]]` entries of the static walls.
+    statics: String,
+    /// The `[terrain]` entry and its class.
+    terrain: String,
+    /// Balls: position, velocity, radius.
+    bodies: Vec<(DVec3, DVec3, f64)>,
+    pending: Vec<Pending>,
+}
+
+impl Draft<'_> {
+    /// Where trial `k` takes place: 1 km apart, so trials never meet.
+    fn slot(&self, k: u32) -> DVec3 {
+        self.s.offset + DVec3::new(f64::from(k) * 1000.0, 0.0, 0.0)
+    }
+}
+
 /// Builds a trial set.
 pub fn build(s: &Setup) -> TrialSet {
-    let mut rng = SplitMix64::new(s.seed);
-    let dt = 1.0 / f64::from(s.tick_hz);
-    let spacing = 1000.0;
-    let slot = |k: u32| s.offset + DVec3::new(f64::from(k) * spacing, 0.0, 0.0);
-    let mut statics = String::new();
-    let mut bodies: Vec<(DVec3, DVec3, f64)> = Vec::new();
-    let mut pending: Vec<Pending> = Vec::new();
-    let mut terrain = String::new();
+    let mut d = Draft {
+        s,
+        rng: SplitMix64::new(s.seed),
+        dt: 1.0 / f64::from(s.tick_hz),
+        statics: String::new(),
+        terrain: String::new(),
+        bodies: Vec::new(),
+        pending: Vec::new(),
+    };
     match s.kind {
-        Kind::SpherePairs => {
-            for k in 0..2 * s.count {
-                let c = slot(k);
-                let (ra, rb) = (range(&mut rng, s.radius), range(&mut rng, s.radius));
-                let n = unit(&mut rng);
-                let tc = 0.05 + 0.9 * rng.unit();
-                let va = unit(&mut rng) * range(&mut rng, s.speed) * 0.5;
-                let hit = k % 2 == 0;
-                let (vb, pb_c) = if hit {
-                    // Approach along -n with a random tangential part.
-                    let w = (-n * (0.3 + 0.7 * rng.unit()) + unit(&mut rng).reject_from(n) * 0.5).normalize()
-                        * range(&mut rng, s.speed);
-                    (va + w, c + n * (ra + rb))
-                } else {
-                    // Closest approach 1 % over the radius sum, with relative motion across n.
-                    let w = unit(&mut rng).reject_from(n).normalize_or(n.any_orthonormal_vector())
-                        * range(&mut rng, s.speed);
-                    (va + w, c + n * (ra + rb) * 1.01)
-                };
-                let ia = bodies.len();
-                bodies.push((c - va * (tc * dt), va, ra));
-                bodies.push((pb_c - vb * (tc * dt), vb, rb));
-                pending.push((ia, Some(ia + 1), hit.then_some(tc), c + n * ra, n));
-            }
-        }
-        Kind::SphereBox | Kind::BulletWall => {
-            for k in 0..s.count {
-                let c = slot(k);
-                let bullet = s.kind == Kind::BulletWall;
-                let (h, rot) = if bullet {
-                    (DVec3::new(0.005, 5.0, 5.0), DQuat::IDENTITY)
-                } else {
-                    let axis = unit(&mut rng);
-                    (
-                        DVec3::new(0.5 + rng.unit(), 1.0 + rng.unit(), 1.0 + rng.unit()),
-                        DQuat::from_axis_angle(axis, 3.0 * rng.unit()),
-                    )
-                };
-                let r = range(&mut rng, s.radius);
-                let (u, v) = if bullet {
-                    (0.0, 0.0)
-                } else {
-                    ((h.y - r) * (2.0 * rng.unit() - 1.0) * 0.9, (h.z - r) * (2.0 * rng.unit() - 1.0) * 0.9)
-                };
-                let face = rot * DVec3::new(h.x, u, v) + c;
-                let out = rot * DVec3::X;
-                let centre_c = face + out * r;
-                let speed = range(&mut rng, s.speed);
-                let dir = if bullet {
-                    -out
-                } else {
-                    (-out * (0.4 + 0.6 * rng.unit())
-                        + (rot * DVec3::new(0.0, 2.0 * rng.unit() - 1.0, 2.0 * rng.unit() - 1.0)) * 0.5)
-                        .normalize()
-                };
-                let vel = dir * speed;
-                let tc = 0.05 + 0.9 * rng.unit();
-                let (ax, ay, az) = {
-                    let q = rot.to_euler(glam::EulerRot::ZYX);
-                    (q.2.to_degrees(), q.1.to_degrees(), q.0.to_degrees())
-                };
-                statics += &format!(
-                    "[[body]]\nclass = \"wall\"\nshape = {{ type = \"cuboid\", half_extents_m = [{}, {}, {}] }}\nposition = [{}, {}, {}]\nrotation_deg = [{ax}, {ay}, {az}]\n",
-                    h.x, h.y, h.z, c.x, c.y, c.z
-                );
-                let ib = bodies.len();
-                bodies.push((centre_c - vel * (tc * dt), vel, r));
-                // The sphere is the second entity (statics come first): normal from box to sphere.
-                pending.push((ib, None, Some(tc), face, out));
-            }
-        }
-        Kind::SphereTerrain => {
-            // A tilted plane y = 0.2 x - 0.1 z as a height field, 2 m cells, big enough for all.
-            let cells = (s.count as f64).sqrt().ceil() as u32 * 4 + 4;
-            let size = f64::from(cells) * 2.0;
-            let o = s.offset + DVec3::new(-size / 2.0, 0.0, -size / 2.0);
-            let rows: Vec<String> = (0..=cells)
-                .map(|z| {
-                    let row: Vec<String> = (0..=cells)
-                        .map(|x| {
-                            format!(
-                                "{}",
-                                0.2 * (f64::from(x) * 2.0 - size / 2.0) - 0.1 * (f64::from(z) * 2.0 - size / 2.0)
-                            )
-                        })
-                        .collect();
-                    format!("[{}]", row.join(", "))
-                })
-                .collect();
-            terrain = format!("[[class]]\nname = \"ground\"\nstatic = true\n[terrain]\nclass = \"ground\"\norigin = [{}, {}, {}]\ncell_m = [2.0, 2.0]\nheights = [{}]\n", o.x, o.y, o.z, rows.join(", "));
-            let up = DVec3::new(-0.2, 1.0, 0.1).normalize();
-            let side = (s.count as f64).sqrt().ceil() as u32;
-            for k in 0..s.count {
-                let (gx, gz) = (f64::from(k % side), f64::from(k / side));
-                let x = -size / 2.0 + 8.0 + gx * 8.0;
-                let z = -size / 2.0 + 8.0 + gz * 8.0;
-                let p = s.offset + DVec3::new(x, 0.2 * x - 0.1 * z, z);
-                let r = range(&mut rng, s.radius);
-                let centre_c = p + up * r;
-                let dir = (-up + unit(&mut rng).reject_from(up) * 0.5 * rng.unit()).normalize();
-                let vel = dir * range(&mut rng, s.speed).min(100.0);
-                let tc = 0.05 + 0.9 * rng.unit();
-                let ib = bodies.len();
-                bodies.push((centre_c - vel * (tc * dt), vel, r));
-                // The terrain is entity 0: normal from terrain to sphere.
-                pending.push((ib, None, Some(tc), p, up));
-            }
-        }
+        Kind::SpherePairs => sphere_pairs(&mut d),
+        Kind::SphereBox | Kind::BulletWall => spheres_at_boxes(&mut d),
+        Kind::SphereTerrain => spheres_at_terrain(&mut d),
     }
+    let Draft { statics, terrain, bodies, pending, .. } = d;
     let text = format!(
         "[world]\nname = \"trials\"\ntick_hz = {}\ndefault_response = \"trigger\"\ncontact_slop_m = 1e-9\nmax_bodies = 2000000\n[[class]]\nname = \"ball\"\ngravity = false\nmax_speed_mps = 1e5\n[[class]]\nname = \"wall\"\nstatic = true\n{terrain}{statics}",
         s.tick_hz
@@ -345,6 +265,121 @@ pub fn build(s: &Setup) -> TrialSet {
         })
         .collect();
     TrialSet { world: scene.world, truths }
+}
+
+/// Pairs of spheres, every other one meeting at a drawn time within the tick, the rest missing
+/// by 1 % of their radius sum.
+fn sphere_pairs(d: &mut Draft<'_>) {
+    let (s, dt) = (d.s, d.dt);
+    for k in 0..2 * s.count {
+        let c = d.slot(k);
+        let (ra, rb) = (range(&mut d.rng, s.radius), range(&mut d.rng, s.radius));
+        let n = unit(&mut d.rng);
+        let tc = 0.05 + 0.9 * d.rng.unit();
+        let va = unit(&mut d.rng) * range(&mut d.rng, s.speed) * 0.5;
+        let hit = k % 2 == 0;
+        let (vb, pb_c) = if hit {
+            // Approach along -n with a random tangential part.
+            let w = (-n * (0.3 + 0.7 * d.rng.unit()) + unit(&mut d.rng).reject_from(n) * 0.5).normalize()
+                * range(&mut d.rng, s.speed);
+            (va + w, c + n * (ra + rb))
+        } else {
+            // Closest approach 1 % over the radius sum, with relative motion across n.
+            let w =
+                unit(&mut d.rng).reject_from(n).normalize_or(n.any_orthonormal_vector()) * range(&mut d.rng, s.speed);
+            (va + w, c + n * (ra + rb) * 1.01)
+        };
+        let ia = d.bodies.len();
+        d.bodies.push((c - va * (tc * dt), va, ra));
+        d.bodies.push((pb_c - vb * (tc * dt), vb, rb));
+        d.pending.push((ia, Some(ia + 1), hit.then_some(tc), c + n * ra, n));
+    }
+}
+
+/// Spheres meeting rotated boxes (or, for bullets, thin walls head on) at a drawn time.
+fn spheres_at_boxes(d: &mut Draft<'_>) {
+    let (s, dt) = (d.s, d.dt);
+    for k in 0..s.count {
+        let c = d.slot(k);
+        let bullet = s.kind == Kind::BulletWall;
+        let (h, rot) = if bullet {
+            (DVec3::new(0.005, 5.0, 5.0), DQuat::IDENTITY)
+        } else {
+            let axis = unit(&mut d.rng);
+            (
+                DVec3::new(0.5 + d.rng.unit(), 1.0 + d.rng.unit(), 1.0 + d.rng.unit()),
+                DQuat::from_axis_angle(axis, 3.0 * d.rng.unit()),
+            )
+        };
+        let r = range(&mut d.rng, s.radius);
+        let (u, v) = if bullet {
+            (0.0, 0.0)
+        } else {
+            ((h.y - r) * (2.0 * d.rng.unit() - 1.0) * 0.9, (h.z - r) * (2.0 * d.rng.unit() - 1.0) * 0.9)
+        };
+        let face = rot * DVec3::new(h.x, u, v) + c;
+        let out = rot * DVec3::X;
+        let centre_c = face + out * r;
+        let speed = range(&mut d.rng, s.speed);
+        let dir = if bullet {
+            -out
+        } else {
+            (-out * (0.4 + 0.6 * d.rng.unit())
+                + (rot * DVec3::new(0.0, 2.0 * d.rng.unit() - 1.0, 2.0 * d.rng.unit() - 1.0)) * 0.5)
+                .normalize()
+        };
+        let vel = dir * speed;
+        let tc = 0.05 + 0.9 * d.rng.unit();
+        let (ax, ay, az) = {
+            let q = rot.to_euler(glam::EulerRot::ZYX);
+            (q.2.to_degrees(), q.1.to_degrees(), q.0.to_degrees())
+        };
+        d.statics += &format!(
+            "[[body]]\nclass = \"wall\"\nshape = {{ type = \"cuboid\", half_extents_m = [{}, {}, {}] }}\nposition = [{}, {}, {}]\nrotation_deg = [{ax}, {ay}, {az}]\n",
+            h.x, h.y, h.z, c.x, c.y, c.z
+        );
+        let ib = d.bodies.len();
+        d.bodies.push((centre_c - vel * (tc * dt), vel, r));
+        // The sphere is the second entity (statics come first): normal from box to sphere.
+        d.pending.push((ib, None, Some(tc), face, out));
+    }
+}
+
+/// Spheres meeting a tilted height field at a drawn time.
+fn spheres_at_terrain(d: &mut Draft<'_>) {
+    let (s, dt) = (d.s, d.dt);
+    // A tilted plane y = 0.2 x - 0.1 z as a height field, 2 m cells, big enough for all.
+    let cells = (s.count as f64).sqrt().ceil() as u32 * 4 + 4;
+    let size = f64::from(cells) * 2.0;
+    let o = s.offset + DVec3::new(-size / 2.0, 0.0, -size / 2.0);
+    let rows: Vec<String> = (0..=cells)
+        .map(|z| {
+            let row: Vec<String> = (0..=cells)
+                .map(|x| {
+                    format!("{}", 0.2 * (f64::from(x) * 2.0 - size / 2.0) - 0.1 * (f64::from(z) * 2.0 - size / 2.0))
+                })
+                .collect();
+            format!("[{}]", row.join(", "))
+        })
+        .collect();
+    d.terrain = format!("[[class]]\nname = \"ground\"\nstatic = true\n[terrain]\nclass = \"ground\"\norigin = [{}, {}, {}]\ncell_m = [2.0, 2.0]\nheights = [{}]\n", o.x, o.y, o.z, rows.join(", "));
+    let up = DVec3::new(-0.2, 1.0, 0.1).normalize();
+    let side = (s.count as f64).sqrt().ceil() as u32;
+    for k in 0..s.count {
+        let (gx, gz) = (f64::from(k % side), f64::from(k / side));
+        let x = -size / 2.0 + 8.0 + gx * 8.0;
+        let z = -size / 2.0 + 8.0 + gz * 8.0;
+        let p = s.offset + DVec3::new(x, 0.2 * x - 0.1 * z, z);
+        let r = range(&mut d.rng, s.radius);
+        let centre_c = p + up * r;
+        let dir = (-up + unit(&mut d.rng).reject_from(up) * 0.5 * d.rng.unit()).normalize();
+        let vel = dir * range(&mut d.rng, s.speed).min(100.0);
+        let tc = 0.05 + 0.9 * d.rng.unit();
+        let ib = d.bodies.len();
+        d.bodies.push((centre_c - vel * (tc * dt), vel, r));
+        // The terrain is entity 0: normal from terrain to sphere.
+        d.pending.push((ib, None, Some(tc), p, up));
+    }
 }
 
 /// Runs `method` on `set`: the first tick's events against the truths, and the tick's time

@@ -142,9 +142,44 @@ impl Builder {
         })
     }
 
+    /// The scene `def` describes, checked entry by entry: the world's keys, the classes and their
+    /// responses, the terrain, the bodies (placed in file order, ids ascending), the spawn rules.
     fn build(&self, def: &SceneFile) -> Result<Scene, SceneError> {
         let w = &def.world;
         let name = WorldId::new(w.name.clone()).map_err(|e| self.err("world.name", e.to_string()))?;
+        let bisect = self.world_keys(w)?;
+        let (mut classes, immovable) = self.classes(def)?;
+        self.responses(def, &mut classes)?;
+        // Bodies, in file order: [[body]], then [[array]], then [[scatter]]. Ids ascend in that
+        // order; the terrain, if any, is entity 0.
+        let mut next_id: u32 = 0;
+        let terrain = self.terrain(def, &classes, &mut next_id)?;
+        let mut items: Vec<Item> = Vec::new();
+        self.bodies(def, &classes, &mut items)?;
+        self.arrays(def, &classes, &mut items)?;
+        self.scatters(def, &classes, &mut items)?;
+        let total = items.len() + usize::from(terrain.is_some());
+        if total > w.max_bodies as usize {
+            return Err(self
+                .err("world.max_bodies", format!("the scene has {total} bodies, over max_bodies = {}", w.max_bodies)));
+        }
+
+        let (static_world, bodies) = self.place(items, &classes, &immovable, terrain, &mut next_id)?;
+        let (avatar, projectile_class) = self.spawn_rules(def, &classes)?;
+        let config = sim_config(w, classes, bisect, projectile_class);
+        let world = World {
+            tick: Tick(0),
+            bodies,
+            next_entity: next_id,
+            touching: Vec::new(),
+            statics: Arc::new(static_world),
+            config: Arc::new(config),
+        };
+        Ok(Scene { name, world, avatar })
+    }
+
+    /// Checks `[world]`'s keys; the bisection settings they give.
+    fn world_keys(&self, w: &WorldDef) -> Result<BisectConfig, SceneError> {
         if w.max_bodies > MAX_SCENE_BODIES {
             return Err(
                 self.err("world.max_bodies", format!("{} is over the limit of {MAX_SCENE_BODIES}", w.max_bodies))
@@ -183,6 +218,12 @@ impl Builder {
         if !(0.0..=1.0).contains(&w.restitution) {
             return Err(self.err("world.restitution", format!("{} must be in [0, 1]", w.restitution)));
         }
+        Ok(bisect)
+    }
+
+    /// The classes, with the default response, and which are immovable (static, or marked so).
+    fn classes(&self, def: &SceneFile) -> Result<(Classes, Vec<bool>), SceneError> {
+        let w = &def.world;
         if def.classes.is_empty() {
             return Err(self.err("class", "a scene needs at least one [[class]]"));
         }
@@ -211,11 +252,16 @@ impl Builder {
         }
         let default =
             rule_of(w.default_response, w.restitution, None, None).expect("default response has no destroy side");
-        let mut classes = Classes::new(props, default);
+        Ok((Classes::new(props, default), immovable))
+    }
+
+    /// Sets the rule of each `[[response]]` on `classes`.
+    fn responses(&self, def: &SceneFile, classes: &mut Classes) -> Result<(), SceneError> {
+        let w = &def.world;
         for (k, r) in def.responses.iter().enumerate() {
             let entry = format!("response[{k}]");
-            let a = self.class(&classes, &r.between[0], &format!("{entry}.between[0]"))?;
-            let b = self.class(&classes, &r.between[1], &format!("{entry}.between[1]"))?;
+            let a = self.class(classes, &r.between[0], &format!("{entry}.between[0]"))?;
+            let b = self.class(classes, &r.between[1], &format!("{entry}.between[1]"))?;
             let restitution = r.restitution.unwrap_or(w.restitution);
             if !(0.0..=1.0).contains(&restitution) {
                 return Err(self.err(format!("{entry}.restitution"), format!("{restitution} must be in [0, 1]")));
@@ -242,13 +288,15 @@ impl Builder {
             classes.set_rule(a, b, rule);
         }
 
-        // Bodies, in file order: [[body]], then [[array]], then [[scatter]]. Ids ascend in that
-        // order; the terrain, if any, is entity 0.
-        let mut next_id: u32 = 0;
-        let terrain = match &def.terrain {
+        Ok(())
+    }
+
+    /// The terrain, if the scene has one (it takes the next id).
+    fn terrain(&self, def: &SceneFile, classes: &Classes, next_id: &mut u32) -> Result<Option<Terrain>, SceneError> {
+        Ok(match &def.terrain {
             None => None,
             Some(t) => {
-                let class = self.class(&classes, &t.class, "terrain.class")?;
+                let class = self.class(classes, &t.class, "terrain.class")?;
                 let samples = match (&t.heights, &t.hills) {
                     (Some(h), None) => h.iter().map(|r| r.len() as u64).sum::<u64>(),
                     (None, Some(h)) => u64::from(h.nx.max(2)) * u64::from(h.nz.max(2)),
@@ -270,15 +318,18 @@ impl Builder {
                 }
                 let field = HeightField::new(DVec3::from_array(t.origin), t.cell_m[0], t.cell_m[1], &rows)
                     .map_err(|e| self.err("terrain", e.to_string()))?;
-                let id = EntityId(next_id);
-                next_id += 1;
+                let id = EntityId(*next_id);
+                *next_id += 1;
                 Some(Terrain { id, class, field })
             }
-        };
-        let mut items: Vec<Item> = Vec::new();
+        })
+    }
+
+    /// `[[body]]` entries, one item each.
+    fn bodies(&self, def: &SceneFile, classes: &Classes, items: &mut Vec<Item>) -> Result<(), SceneError> {
         for (k, b) in def.bodies.iter().enumerate() {
             let entry = format!("body[{k}]");
-            let class = self.class(&classes, &b.class, &format!("{entry}.class"))?;
+            let class = self.class(classes, &b.class, &format!("{entry}.class"))?;
             let is_static = classes.props[class.0 as usize].is_static;
             let shape = self.shape(&b.shape, &format!("{entry}.shape"), is_static)?;
             for (field, v) in [("position", b.position), ("velocity", b.velocity), ("rotation_deg", b.rotation_deg)] {
@@ -296,9 +347,15 @@ impl Builder {
             let (pos, vel) = (DVec3::from_array(b.position), DVec3::from_array(b.velocity));
             items.push(Item { entry, class, shape, pos, vel, rot, mass: b.mass_kg, owner: b.owner.map(ClientId) });
         }
+        Ok(())
+    }
+
+    /// `[[array]]` entries: a lattice of items each.
+    fn arrays(&self, def: &SceneFile, classes: &Classes, items: &mut Vec<Item>) -> Result<(), SceneError> {
+        let w = &def.world;
         for (k, a) in def.arrays.iter().enumerate() {
             let entry = format!("array[{k}]");
-            let class = self.class(&classes, &a.class, &format!("{entry}.class"))?;
+            let class = self.class(classes, &a.class, &format!("{entry}.class"))?;
             let shape = self.shape(&a.shape, &format!("{entry}.shape"), classes.props[class.0 as usize].is_static)?;
             if !finite3(a.origin) || !finite3(a.spacing_m) || !finite3(a.velocity) {
                 return Err(self.err(entry, "origin, spacing_m and velocity must be finite"));
@@ -326,9 +383,15 @@ impl Builder {
                 }
             }
         }
+        Ok(())
+    }
+
+    /// `[[scatter]]` entries: items placed by a seeded generator.
+    fn scatters(&self, def: &SceneFile, classes: &Classes, items: &mut Vec<Item>) -> Result<(), SceneError> {
+        let w = &def.world;
         for (k, s) in def.scatters.iter().enumerate() {
             let entry = format!("scatter[{k}]");
-            let class = self.class(&classes, &s.class, &format!("{entry}.class"))?;
+            let class = self.class(classes, &s.class, &format!("{entry}.class"))?;
             let shape = self.shape(&s.shape, &format!("{entry}.shape"), classes.props[class.0 as usize].is_static)?;
             self.room(items.len(), u64::from(s.count), &entry, w.max_bodies)?;
             let placed = random::scatter(s, &shape).map_err(|d| self.err(&entry, d))?;
@@ -345,17 +408,24 @@ impl Builder {
                 });
             }
         }
-        let total = items.len() + usize::from(terrain.is_some());
-        if total > w.max_bodies as usize {
-            return Err(self
-                .err("world.max_bodies", format!("the scene has {total} bodies, over max_bodies = {}", w.max_bodies)));
-        }
+        Ok(())
+    }
 
+    /// The items given ids in order: static ones into the static world (with its index and the
+    /// terrain), the others into the bodies, with their masses.
+    fn place(
+        &self,
+        items: Vec<Item>,
+        classes: &Classes,
+        immovable: &[bool],
+        terrain: Option<Terrain>,
+        next_id: &mut u32,
+    ) -> Result<(StaticWorld, Bodies), SceneError> {
         let mut statics = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
         let mut bodies = Bodies::default();
         for Item { entry, class, shape, pos, vel, rot, mass, owner } in items {
-            let id = EntityId(next_id);
-            next_id += 1;
+            let id = EntityId(*next_id);
+            *next_id += 1;
             if classes.props[class.0 as usize].is_static {
                 if vel != DVec3::ZERO || owner.is_some() {
                     return Err(self.err(entry, "a static body cannot have a velocity or an owner"));
@@ -376,23 +446,33 @@ impl Builder {
             }
         }
         let index = StaticIndex::new(&statics.5);
-        let static_world = StaticWorld {
-            id: statics.0,
-            class: statics.1,
-            shape: statics.2,
-            pos: statics.3,
-            rot: statics.4,
-            aabb: statics.5,
-            index,
-            terrain,
-        };
+        Ok((
+            StaticWorld {
+                id: statics.0,
+                class: statics.1,
+                shape: statics.2,
+                pos: statics.3,
+                rot: statics.4,
+                aabb: statics.5,
+                index,
+                terrain,
+            },
+            bodies,
+        ))
+    }
 
-        let (avatar, projectile_class) = match &def.spawn {
+    /// `[spawn]`: the avatar rule and the projectile class.
+    fn spawn_rules(
+        &self,
+        def: &SceneFile,
+        classes: &Classes,
+    ) -> Result<(Option<AvatarRule>, Option<ClassId>), SceneError> {
+        Ok(match &def.spawn {
             None => (None, None),
             Some(sp) => {
                 let avatar = match (&sp.avatar_class, &sp.avatar_shape) {
                     (Some(c), Some(s)) => {
-                        let class = self.class(&classes, c, "spawn.avatar_class")?;
+                        let class = self.class(classes, c, "spawn.avatar_class")?;
                         if classes.props[class.0 as usize].is_static {
                             return Err(self.err("spawn.avatar_class", "avatars cannot be static"));
                         }
@@ -408,47 +488,41 @@ impl Builder {
                     _ => return Err(self.err("spawn", "avatar_class and avatar_shape go together")),
                 };
                 let projectile = match &sp.projectile_class {
-                    Some(c) => Some(self.class(&classes, c, "spawn.projectile_class")?),
+                    Some(c) => Some(self.class(classes, c, "spawn.projectile_class")?),
                     None => None,
                 };
                 (avatar, projectile)
             }
-        };
+        })
+    }
+}
 
-        let dt = 1.0 / f64::from(w.tick_hz);
-        let window_ticks = crate::sim::world::window_ticks(w.rollback_ms, w.tick_hz);
-        let config = SimConfig {
-            tick_hz: w.tick_hz,
-            dt,
-            gravity: DVec3::from_array(w.gravity),
-            classes,
-            bisect,
-            contact_slop_m: w.contact_slop_m,
-            bounce_threshold_mps: w.bounce_threshold_mps,
-            max_resolutions_per_tick: w.max_resolutions_per_tick,
-            friction: w.friction,
-            sleep_speed_mps: w.sleep_speed_mps,
-            // At least one tick, so "0.5 s" never rounds to "never"; 0 alone disables.
-            sleep_after_ticks: if w.sleep_after_s == 0.0 {
-                0
-            } else {
-                ((w.sleep_after_s * f64::from(w.tick_hz)).ceil() as u32).max(1)
-            },
-            max_bodies: w.max_bodies,
-            window_ticks,
-            input_lead_ticks: w.input_lead_ticks,
-            max_rewind_ticks: crate::sim::world::window_ticks(w.max_rewind_ms.unwrap_or(w.rollback_ms), w.tick_hz),
-            projectile_class,
-        };
-        let world = World {
-            tick: Tick(0),
-            bodies,
-            next_entity: next_id,
-            touching: Vec::new(),
-            statics: Arc::new(static_world),
-            config: Arc::new(config),
-        };
-        Ok(Scene { name, world, avatar })
+/// The core's configuration from `[world]`, the classes and the spawn rules.
+fn sim_config(w: &WorldDef, classes: Classes, bisect: BisectConfig, projectile_class: Option<ClassId>) -> SimConfig {
+    let dt = 1.0 / f64::from(w.tick_hz);
+    let window_ticks = crate::sim::world::window_ticks(w.rollback_ms, w.tick_hz);
+    SimConfig {
+        tick_hz: w.tick_hz,
+        dt,
+        gravity: DVec3::from_array(w.gravity),
+        classes,
+        bisect,
+        contact_slop_m: w.contact_slop_m,
+        bounce_threshold_mps: w.bounce_threshold_mps,
+        max_resolutions_per_tick: w.max_resolutions_per_tick,
+        friction: w.friction,
+        sleep_speed_mps: w.sleep_speed_mps,
+        // At least one tick, so "0.5 s" never rounds to "never"; 0 alone disables.
+        sleep_after_ticks: if w.sleep_after_s == 0.0 {
+            0
+        } else {
+            ((w.sleep_after_s * f64::from(w.tick_hz)).ceil() as u32).max(1)
+        },
+        max_bodies: w.max_bodies,
+        window_ticks,
+        input_lead_ticks: w.input_lead_ticks,
+        max_rewind_ticks: crate::sim::world::window_ticks(w.max_rewind_ms.unwrap_or(w.rollback_ms), w.tick_hz),
+        projectile_class,
     }
 }
 

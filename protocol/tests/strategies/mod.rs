@@ -102,152 +102,177 @@ pub fn server_message() -> impl Strategy<Value = ServerMessage> {
     prop_oneof![
         batch().prop_map(ServerMessage::Events),
         batch().prop_map(ServerMessage::Confirmed),
-        (tick(), any::<u32>(), events(), events(), events()).prop_map(|(tick, revision, retracted, amended, added)| {
-            ServerMessage::Corrections(CorrectionBatch { tick, revision, retracted, amended, added })
-        }),
-        (client(), any::<u32>(), tick(), tick(), tick()).prop_map(|(client, seq, tick, applied_tick, server_tick)| {
-            ServerMessage::Ack(InputAck {
-                client,
-                seq,
-                tick,
-                applied_tick,
-                server_tick,
-                margin_ticks: applied_tick.0.wrapping_sub(server_tick.0) as i32,
-                lead_ticks: seq % 17,
-            })
-        }),
-        (
-            client(),
-            option::of((any::<u32>(), tick())),
-            reason(),
-            "[a-z ]{0,40}",
-            option::of(tick()),
-            option::of(tick())
-        )
-            .prop_map(|(client, header, reason, detail, oldest_tick, newest_tick)| {
-                let (seq, tick) = (header.map(|h| h.0), header.map(|h| h.1));
-                ServerMessage::Reject(InputReject { client, seq, tick, reason, detail, oldest_tick, newest_tick })
-            }),
-        (client(), any::<u32>(), tick(), entity(), option::of((entity(), vec3(), unit3(), 0.0..1.0e4f64))).prop_map(
-            |(client, seq, tick, shooter, hit)| {
-                ServerMessage::RayResult(RayResult {
-                    client,
-                    seq,
-                    tick,
-                    view_tick: Tick(tick.0 / 2),
-                    clamped: seq % 3 == 0,
-                    shooter,
-                    hit: hit.map(|(entity, point, normal, distance_m)| RayHit { entity, point, normal, distance_m }),
-                })
-            }
-        ),
-        (client(), option::of(entity()), tick(), 1..1000u32, 0..1000u32).prop_map(
-            |(client, avatar, tick, tick_hz, window_ticks)| {
-                ServerMessage::Welcome(Welcome {
-                    client,
-                    avatar,
-                    tick,
-                    tick_hz,
-                    window_ticks,
-                    input_lead_ticks: window_ticks / 2,
-                    max_rewind_ticks: window_ticks,
-                    next_seq: tick.0 / 3,
-                })
-            }
-        ),
-        (tick(), any::<u64>(), vec((entity(), "[a-z]{1,10}", option::of(client()), vec3(), small3()), 0..5)).prop_map(
-            |(tick, state_hash, bodies)| {
-                ServerMessage::Snapshot(WorldSnapshot {
-                    tick,
-                    state_hash,
-                    bodies: bodies
-                        .into_iter()
-                        .map(|(entity, class, owner, position, velocity)| BodyState {
-                            entity,
-                            class,
-                            owner,
-                            position,
-                            velocity,
-                        })
-                        .collect(),
-                })
-            }
-        ),
+        corrections(),
+        ack(),
+        reject(),
+        ray_result(),
+        welcome(),
+        snapshot(),
         (tick(), tick(), events()).prop_map(|(from, to, events)| ServerMessage::History(EventHistory {
             from,
             to,
             events
         })),
-        (
-            tick(),
-            (0.0..100.0f64, 0.0..100.0f64, 0.0..100.0f64),
-            any::<u64>(),
-            any::<u32>(),
-            btree_map("[a-z_]{1,12}", any::<u64>(), 0..4),
-            0.0..1e6f64
-        )
-            .prop_map(|(tick, (p50, p99, max), overruns, bodies, rejected, eps)| {
-                ServerMessage::Stats(ServerStats {
-                    tick,
-                    tick_ms_p50: p50,
-                    tick_ms_p99: p99,
-                    tick_ms_max: max,
-                    overruns,
-                    bodies,
-                    pairs_tested: bodies / 2,
-                    rollbacks: 3,
-                    rollback_depth_max: 7,
-                    inputs_accepted: overruns / 2,
-                    inputs_rejected: rejected,
-                    events_per_s: eps,
-                    queue_depth_max: 9,
-                    tick_ms: vec![p50 as f32, p99 as f32],
-                    stage_ms: vec![("broadphase".into(), p50 / 3.0)],
-                    clients: bodies / 3,
-                })
-            }),
-        (
-            tick(),
-            any::<u32>(),
-            any::<bool>(),
-            vec((entity(), "[a-z]{1,10}", option::of(client()), 0..7u8, small3()), 0..4),
-            vec((entity(), small3(), small3(), any::<bool>()), 0..6),
-            vec(entity(), 0..3),
-            option::of(small3()),
-        )
-            .prop_map(|(tick, frame, full, entered, moved, left, centre)| {
-                let f3 = |v: [f64; 3]| v.map(|x| x as f32);
-                let shapes = [
-                    BodyShape::Sphere,
-                    BodyShape::Capsule,
-                    BodyShape::Cuboid,
-                    BodyShape::Ellipsoid,
-                    BodyShape::Convex,
-                    BodyShape::Trimesh,
-                    BodyShape::Terrain,
-                ];
-                ServerMessage::State(StateFrame {
-                    tick,
-                    frame,
-                    full,
-                    entered: entered
-                        .into_iter()
-                        .map(|(entity, class, owner, shape, half)| BodyInfo {
-                            entity,
-                            class,
-                            owner,
-                            shape: shapes[usize::from(shape)],
-                            half_extents_m: f3(half),
-                            offset_m: [0.0; 3],
-                            fixed: owner.is_none(),
-                        })
-                        .collect(),
-                    moved: moved.into_iter().map(|(e, p, v, a)| BodyMotion(e, f3(p), f3(v), a)).collect(),
-                    left,
-                    deferred: frame % 5,
-                    centre: centre.map(f3),
-                })
-            }),
+        stats(),
+        state_frame(),
         "[a-z ]{0,40}".prop_map(|detail| ServerMessage::QueryError(QueryError { detail })),
     ]
+}
+
+fn corrections() -> impl Strategy<Value = ServerMessage> {
+    (tick(), any::<u32>(), events(), events(), events()).prop_map(|(tick, revision, retracted, amended, added)| {
+        ServerMessage::Corrections(CorrectionBatch { tick, revision, retracted, amended, added })
+    })
+}
+
+fn ack() -> impl Strategy<Value = ServerMessage> {
+    (client(), any::<u32>(), tick(), tick(), tick()).prop_map(|(client, seq, tick, applied_tick, server_tick)| {
+        ServerMessage::Ack(InputAck {
+            client,
+            seq,
+            tick,
+            applied_tick,
+            server_tick,
+            margin_ticks: applied_tick.0.wrapping_sub(server_tick.0) as i32,
+            lead_ticks: seq % 17,
+        })
+    })
+}
+
+fn reject() -> impl Strategy<Value = ServerMessage> {
+    (client(), option::of((any::<u32>(), tick())), reason(), "[a-z ]{0,40}", option::of(tick()), option::of(tick()))
+        .prop_map(|(client, header, reason, detail, oldest_tick, newest_tick)| {
+            let (seq, tick) = (header.map(|h| h.0), header.map(|h| h.1));
+            ServerMessage::Reject(InputReject { client, seq, tick, reason, detail, oldest_tick, newest_tick })
+        })
+}
+
+fn ray_result() -> impl Strategy<Value = ServerMessage> {
+    (client(), any::<u32>(), tick(), entity(), option::of((entity(), vec3(), unit3(), 0.0..1.0e4f64))).prop_map(
+        |(client, seq, tick, shooter, hit)| {
+            ServerMessage::RayResult(RayResult {
+                client,
+                seq,
+                tick,
+                view_tick: Tick(tick.0 / 2),
+                clamped: seq % 3 == 0,
+                shooter,
+                hit: hit.map(|(entity, point, normal, distance_m)| RayHit { entity, point, normal, distance_m }),
+            })
+        },
+    )
+}
+
+fn welcome() -> impl Strategy<Value = ServerMessage> {
+    (client(), option::of(entity()), tick(), 1..1000u32, 0..1000u32).prop_map(
+        |(client, avatar, tick, tick_hz, window_ticks)| {
+            ServerMessage::Welcome(Welcome {
+                client,
+                avatar,
+                tick,
+                tick_hz,
+                window_ticks,
+                input_lead_ticks: window_ticks / 2,
+                max_rewind_ticks: window_ticks,
+                next_seq: tick.0 / 3,
+            })
+        },
+    )
+}
+
+fn snapshot() -> impl Strategy<Value = ServerMessage> {
+    (tick(), any::<u64>(), vec((entity(), "[a-z]{1,10}", option::of(client()), vec3(), small3()), 0..5)).prop_map(
+        |(tick, state_hash, bodies)| {
+            ServerMessage::Snapshot(WorldSnapshot {
+                tick,
+                state_hash,
+                bodies: bodies
+                    .into_iter()
+                    .map(|(entity, class, owner, position, velocity)| BodyState {
+                        entity,
+                        class,
+                        owner,
+                        position,
+                        velocity,
+                    })
+                    .collect(),
+            })
+        },
+    )
+}
+
+fn stats() -> impl Strategy<Value = ServerMessage> {
+    (
+        tick(),
+        (0.0..100.0f64, 0.0..100.0f64, 0.0..100.0f64),
+        any::<u64>(),
+        any::<u32>(),
+        btree_map("[a-z_]{1,12}", any::<u64>(), 0..4),
+        0.0..1e6f64,
+    )
+        .prop_map(|(tick, (p50, p99, max), overruns, bodies, rejected, eps)| {
+            ServerMessage::Stats(ServerStats {
+                tick,
+                tick_ms_p50: p50,
+                tick_ms_p99: p99,
+                tick_ms_max: max,
+                overruns,
+                bodies,
+                pairs_tested: bodies / 2,
+                rollbacks: 3,
+                rollback_depth_max: 7,
+                inputs_accepted: overruns / 2,
+                inputs_rejected: rejected,
+                events_per_s: eps,
+                queue_depth_max: 9,
+                tick_ms: vec![p50 as f32, p99 as f32],
+                stage_ms: vec![("broadphase".into(), p50 / 3.0)],
+                clients: bodies / 3,
+            })
+        })
+}
+
+fn state_frame() -> impl Strategy<Value = ServerMessage> {
+    (
+        tick(),
+        any::<u32>(),
+        any::<bool>(),
+        vec((entity(), "[a-z]{1,10}", option::of(client()), 0..7u8, small3()), 0..4),
+        vec((entity(), small3(), small3(), any::<bool>()), 0..6),
+        vec(entity(), 0..3),
+        option::of(small3()),
+    )
+        .prop_map(|(tick, frame, full, entered, moved, left, centre)| {
+            let f3 = |v: [f64; 3]| v.map(|x| x as f32);
+            let shapes = [
+                BodyShape::Sphere,
+                BodyShape::Capsule,
+                BodyShape::Cuboid,
+                BodyShape::Ellipsoid,
+                BodyShape::Convex,
+                BodyShape::Trimesh,
+                BodyShape::Terrain,
+            ];
+            ServerMessage::State(StateFrame {
+                tick,
+                frame,
+                full,
+                entered: entered
+                    .into_iter()
+                    .map(|(entity, class, owner, shape, half)| BodyInfo {
+                        entity,
+                        class,
+                        owner,
+                        shape: shapes[usize::from(shape)],
+                        half_extents_m: f3(half),
+                        offset_m: [0.0; 3],
+                        fixed: owner.is_none(),
+                    })
+                    .collect(),
+                moved: moved.into_iter().map(|(e, p, v, a)| BodyMotion(e, f3(p), f3(v), a)).collect(),
+                left,
+                deferred: frame % 5,
+                centre: centre.map(f3),
+            })
+        })
 }

@@ -179,7 +179,7 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
     );
     let mut growth: Vec<(f64, f64)> = Vec::new();
     let mut rapier_points: Vec<(f64, f64)> = Vec::new();
-    let mut variant_points: std::collections::BTreeMap<&str, Vec<(f64, f64)>> = std::collections::BTreeMap::new();
+    let mut variant_points: Points = Points::new();
     for &n in &a.bodies {
         progress(&format!("{n} bodies: building"));
         let scene = scene(n)?;
@@ -195,112 +195,162 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
             ensure!(m.hash == ours[0].1.hash, "{threads} threads ended in another state than {}", ours[0].0);
         }
         growth.push((f64::from(n), ours[0].1.ms));
-        // rapier at 1 thread, and with its parallel pipeline built in, at each thread count, in
-        // a rayon pool of that many threads (its stages use the pool they are called from).
-        let mut peers: Vec<(usize, Measured)> = Vec::new();
-        if !a.no_rapier {
-            let counts: Vec<usize> = if RAPIER_PARALLEL { pools.iter().map(|(t, _)| *t).collect() } else { vec![1] };
-            for t in counts {
-                progress(&format!("{n} bodies: rapier ({t} threads)"));
-                let m = if RAPIER_PARALLEL {
-                    let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build()?;
-                    pool.install(|| run_rapier(world, a.warmup, a.ticks))
-                } else {
-                    run_rapier(world, a.warmup, a.ticks)
-                };
-                peers.push((t, m));
-            }
-        }
-        let single = ours[0].1.ms;
-        for (threads, m) in &ours {
-            // Against rapier on as many threads when its parallel pipeline ran, else on one.
-            let peer = peers.iter().find(|(t, _)| t == threads).or(peers.first());
-            let ratio = peer.map(|(_, p)| p.ms / m.ms);
-            println!(
-                "{n:>8} {:<22} {threads:>7} {:>12.4} {:>10.4} {:>10} {:>12} {:>10}",
-                format!("impact ({})", plan.broadphase.name()),
-                m.ms,
-                m.mean,
-                m.pairs,
-                ratio.map_or("-".into(), |r| format!("{r:.1}x faster")),
-                format!("{:.2}x", single / m.ms)
-            );
-            if a.json {
-                json_line(&json!({"suite": "scale", "engine": "impact", "bodies": n, "threads": threads,
-                    "ms_per_tick": m.ms, "mean_ms_per_tick": m.mean, "pairs": m.pairs,
-                    "broadphase": plan.broadphase.name(), "speedup_vs_1_thread": single / m.ms,
-                    "vs_rapier": ratio, "vs_rapier_threads": peer.map(|(t, _)| t)}));
-            }
-        }
-        for (threads, p) in &peers {
-            let one = peers[0].1.ms;
-            if *threads == 1 {
-                rapier_points.push((f64::from(n), p.ms));
-            }
-            let name = if RAPIER_PARALLEL { "rapier (parallel)" } else { "rapier" };
-            println!(
-                "{n:>8} {name:<22} {threads:>7} {:>12.4} {:>10.4} {:>10} {:>12} {:>10}",
-                p.ms,
-                p.mean,
-                p.pairs,
-                format!("{:.1}x", one / p.ms),
-                format!("{:.2}x", one / p.ms)
-            );
-            if a.json {
-                json_line(&json!({"suite": "scale", "engine": "rapier", "bodies": n, "threads": threads,
-                    "parallel_pipeline": RAPIER_PARALLEL, "ms_per_tick": p.ms, "mean_ms_per_tick": p.mean,
-                    "pairs": p.pairs, "speedup_vs_1_thread": one / p.ms}));
-            }
-            // Same question, same answer: a mismatch means one engine is wrong.
-            let ours = &ours[0].1;
-            let diff = (p.pairs as f64 - ours.pairs as f64).abs();
-            ensure!(
-                diff <= 1.0 + 1e-3 * p.pairs as f64,
-                "pair counts differ: impact {} rapier ({threads} threads) {}",
-                ours.pairs,
-                p.pairs
-            );
-        }
+        let peers = rapier_runs(a, n, world, &pools)?;
+        report_impact(a, n, &plan, &ours, &peers);
+        report_rapier(a, n, &ours, &peers, &mut rapier_points)?;
         if a.variants {
-            let mut kinds = vec![BroadphaseKind::SweepAndPrune, BroadphaseKind::Grid, BroadphaseKind::Bvh];
-            // Brute force is O(n^2): 10^10 box tests a tick at 100k bodies. Run it to 20k.
-            if n <= 20_000 {
-                kinds.push(BroadphaseKind::BruteForce);
-            }
-            for kind in kinds {
-                progress(&format!("{n} bodies: broadphase {}", kind.name()));
-                let m = run_impact(
-                    world,
-                    Plan { broadphase: kind, ..plan.clone() },
-                    &pools[0].1,
-                    a.warmup.min(5),
-                    a.ticks.min(30),
-                );
-                variant_points.entry(kind.name()).or_default().push((f64::from(n), m.ms));
-                println!("{n:>8} {:<22} {:>12.4} {:>10}", format!("impact broadphase={}", kind.name()), m.ms, m.pairs);
-                if a.json {
-                    json_line(
-                        &json!({"suite": "scale", "engine": "impact", "variant": format!("broadphase={}", kind.name()), "bodies": n, "ms_per_tick": m.ms, "pairs": m.pairs}),
-                    );
-                }
-            }
-            progress(&format!("{n} bodies: general path"));
-            let m = run_impact(world, Plan::general(world), &pools[0].1, a.warmup.min(5), a.ticks.min(30));
-            println!(
-                "{n:>8} {:<22} {:>12.4} {:>10} {:>12}",
-                "impact general (GJK)",
-                m.ms,
-                m.pairs,
-                format!("plan {:.1}x faster", m.ms / single)
-            );
-            if a.json {
-                json_line(
-                    &json!({"suite": "scale", "engine": "impact", "variant": "general", "bodies": n, "ms_per_tick": m.ms, "pairs": m.pairs}),
-                );
-            }
+            run_variants(a, n, world, &plan, &pools, ours[0].1.ms, &mut variant_points);
         }
     }
-    for (name, pts) in &variant_points {
+    report_growth(a, &growth, &rapier_points, &variant_points)
+}
+
+/// Times per broadphase variant: (bodies, ms) by variant name.
+type Points = std::collections::BTreeMap<&'static str, Vec<(f64, f64)>>;
+
+/// rapier at 1 thread, and with its parallel pipeline built in, at each thread count, in a rayon
+/// pool of that many threads (its stages use the pool they are called from).
+fn rapier_runs(a: &ScaleArgs, n: u32, world: &World, pools: &[(usize, Pool)]) -> Result<Vec<(usize, Measured)>> {
+    let mut peers: Vec<(usize, Measured)> = Vec::new();
+    if !a.no_rapier {
+        let counts: Vec<usize> = if RAPIER_PARALLEL { pools.iter().map(|(t, _)| *t).collect() } else { vec![1] };
+        for t in counts {
+            progress(&format!("{n} bodies: rapier ({t} threads)"));
+            let m = if RAPIER_PARALLEL {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build()?;
+                pool.install(|| run_rapier(world, a.warmup, a.ticks))
+            } else {
+                run_rapier(world, a.warmup, a.ticks)
+            };
+            peers.push((t, m));
+        }
+    }
+    Ok(peers)
+}
+
+/// impact's rows, each against rapier on as many threads when its parallel pipeline ran, else on one.
+fn report_impact(a: &ScaleArgs, n: u32, plan: &Plan, ours: &[(usize, Measured)], peers: &[(usize, Measured)]) {
+    let single = ours[0].1.ms;
+    for (threads, m) in ours {
+        // Against rapier on as many threads when its parallel pipeline ran, else on one.
+        let peer = peers.iter().find(|(t, _)| t == threads).or(peers.first());
+        let ratio = peer.map(|(_, p)| p.ms / m.ms);
+        println!(
+            "{n:>8} {:<22} {threads:>7} {:>12.4} {:>10.4} {:>10} {:>12} {:>10}",
+            format!("impact ({})", plan.broadphase.name()),
+            m.ms,
+            m.mean,
+            m.pairs,
+            ratio.map_or("-".into(), |r| format!("{r:.1}x faster")),
+            format!("{:.2}x", single / m.ms)
+        );
+        if a.json {
+            json_line(&json!({"suite": "scale", "engine": "impact", "bodies": n, "threads": threads,
+                "ms_per_tick": m.ms, "mean_ms_per_tick": m.mean, "pairs": m.pairs,
+                "broadphase": plan.broadphase.name(), "speedup_vs_1_thread": single / m.ms,
+                "vs_rapier": ratio, "vs_rapier_threads": peer.map(|(t, _)| t)}));
+        }
+    }
+}
+
+/// rapier's rows, each checked to have found as many touching pairs as impact.
+fn report_rapier(
+    a: &ScaleArgs,
+    n: u32,
+    ours: &[(usize, Measured)],
+    peers: &[(usize, Measured)],
+    rapier_points: &mut Vec<(f64, f64)>,
+) -> Result<()> {
+    for (threads, p) in peers {
+        let one = peers[0].1.ms;
+        if *threads == 1 {
+            rapier_points.push((f64::from(n), p.ms));
+        }
+        let name = if RAPIER_PARALLEL { "rapier (parallel)" } else { "rapier" };
+        println!(
+            "{n:>8} {name:<22} {threads:>7} {:>12.4} {:>10.4} {:>10} {:>12} {:>10}",
+            p.ms,
+            p.mean,
+            p.pairs,
+            format!("{:.1}x", one / p.ms),
+            format!("{:.2}x", one / p.ms)
+        );
+        if a.json {
+            json_line(&json!({"suite": "scale", "engine": "rapier", "bodies": n, "threads": threads,
+                "parallel_pipeline": RAPIER_PARALLEL, "ms_per_tick": p.ms, "mean_ms_per_tick": p.mean,
+                "pairs": p.pairs, "speedup_vs_1_thread": one / p.ms}));
+        }
+        // Same question, same answer: a mismatch means one engine is wrong.
+        let ours = &ours[0].1;
+        let diff = (p.pairs as f64 - ours.pairs as f64).abs();
+        ensure!(
+            diff <= 1.0 + 1e-3 * p.pairs as f64,
+            "pair counts differ: impact {} rapier ({threads} threads) {}",
+            ours.pairs,
+            p.pairs
+        );
+    }
+    Ok(())
+}
+
+/// Every broadphase, and the general (GJK) path, on the same world, against the plan's choice.
+fn run_variants(
+    a: &ScaleArgs,
+    n: u32,
+    world: &World,
+    plan: &Plan,
+    pools: &[(usize, Pool)],
+    single: f64,
+    variant_points: &mut Points,
+) {
+    if a.variants {
+        let mut kinds = vec![BroadphaseKind::SweepAndPrune, BroadphaseKind::Grid, BroadphaseKind::Bvh];
+        // Brute force is O(n^2): 10^10 box tests a tick at 100k bodies. Run it to 20k.
+        if n <= 20_000 {
+            kinds.push(BroadphaseKind::BruteForce);
+        }
+        for kind in kinds {
+            progress(&format!("{n} bodies: broadphase {}", kind.name()));
+            let m = run_impact(
+                world,
+                Plan { broadphase: kind, ..plan.clone() },
+                &pools[0].1,
+                a.warmup.min(5),
+                a.ticks.min(30),
+            );
+            variant_points.entry(kind.name()).or_default().push((f64::from(n), m.ms));
+            println!("{n:>8} {:<22} {:>12.4} {:>10}", format!("impact broadphase={}", kind.name()), m.ms, m.pairs);
+            if a.json {
+                json_line(
+                    &json!({"suite": "scale", "engine": "impact", "variant": format!("broadphase={}", kind.name()), "bodies": n, "ms_per_tick": m.ms, "pairs": m.pairs}),
+                );
+            }
+        }
+        progress(&format!("{n} bodies: general path"));
+        let m = run_impact(world, Plan::general(world), &pools[0].1, a.warmup.min(5), a.ticks.min(30));
+        println!(
+            "{n:>8} {:<22} {:>12.4} {:>10} {:>12}",
+            "impact general (GJK)",
+            m.ms,
+            m.pairs,
+            format!("plan {:.1}x faster", m.ms / single)
+        );
+        if a.json {
+            json_line(
+                &json!({"suite": "scale", "engine": "impact", "variant": "general", "bodies": n, "ms_per_tick": m.ms, "pairs": m.pairs}),
+            );
+        }
+    }
+}
+
+/// Growth exponents over the sizes, and the plot.
+fn report_growth(
+    a: &ScaleArgs,
+    growth: &[(f64, f64)],
+    rapier_points: &[(f64, f64)],
+    variant_points: &Points,
+) -> Result<()> {
+    for (name, pts) in variant_points {
         if pts.len() >= 2 {
             let k = growth_exponent(pts);
             println!("broadphase {name}: growth exponent k = {k:.2} over {} sizes", pts.len());
@@ -312,12 +362,12 @@ pub fn run(a: &ScaleArgs) -> Result<()> {
         }
     }
     if growth.len() >= 2 {
-        let slope = growth_exponent(&growth);
+        let slope = growth_exponent(growth);
         println!("growth exponent (ms ~ n^k, least squares): k = {slope:.2}");
         if let Some(path) = &a.svg {
-            let mut series = vec![Series { name: "impact".into(), points: growth.clone() }];
+            let mut series = vec![Series { name: "impact".into(), points: growth.to_vec() }];
             if !rapier_points.is_empty() {
-                series.push(Series { name: "rapier".into(), points: rapier_points.clone() });
+                series.push(Series { name: "rapier".into(), points: rapier_points.to_vec() });
             }
             std::fs::write(
                 path,
