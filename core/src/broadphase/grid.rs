@@ -12,7 +12,7 @@
 //! per run finds it: the whole sweep is O(n + pairs) and walks memory in order. No table grows
 //! with the volume of the world, so a sparse world costs what a dense one does.
 //!
-//! When the world is compact (at most [`DENSE_CELLS_PER_BODY`] cells per body) a table of where
+//! When the world is compact (at most `DENSE_CELLS_PER_BODY` cells per body) a table of where
 //! each cell's entries start replaces both the radix sort (a counting sort fills it in one pass)
 //! and the cursors (each run is two loads): the cursors walked every entry four times and their
 //! loop exits were the sweep's main cost. Both paths give the same order and the same pairs.
@@ -31,7 +31,7 @@ const CELL_MARGIN: f64 = 1.0 / (1u64 << 20) as f64;
 
 /// Above this many cells per body the cell-start table would cost more than the cursors save
 /// (and would grow with the world's volume): the sorted keys and cursors serve instead.
-pub const DENSE_CELLS_PER_BODY: u64 = 32;
+pub(crate) const DENSE_CELLS_PER_BODY: u64 = 32;
 
 /// Grid state, carried across ticks (the sort order) and reused (the buffers).
 #[derive(Debug, Default)]

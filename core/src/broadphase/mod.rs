@@ -182,7 +182,7 @@ fn bvh_pairs(aabbs: &[Aabb], out: &mut Vec<(u32, u32)>) {
 /// body far from the origin is never missed for want of precision.
 ///
 /// With few static bodies (a handful of walls) a linear scan of their boxes beats any tree, so
-/// the BVH is only built from [`StaticIndex::BVH_MIN`] bodies up.
+/// the BVH is only built from `StaticIndex::BVH_MIN` bodies up.
 #[derive(Debug)]
 pub struct StaticIndex {
     bvh: Option<parry::partitioning::Bvh>,
@@ -223,7 +223,7 @@ impl StaticIndex {
     }
 
     /// Fewest static bodies for which the BVH is built.
-    pub const BVH_MIN: usize = 32;
+    pub(crate) const BVH_MIN: usize = 32;
 
     /// Static bodies whose bounds overlap `query`, ascending by index.
     pub fn query(&self, query: &Aabb, out: &mut Vec<u32>) {

@@ -7,7 +7,7 @@ use crate::geometry::Aabb;
 
 /// Sweep-and-prune state carried across ticks.
 #[derive(Debug, Default)]
-pub struct Sap {
+pub(crate) struct Sap {
     order: Vec<u32>,
     axis: usize,
 }

@@ -5,7 +5,7 @@ use glam::{DQuat, DVec3};
 
 /// Closest points `(on [p1, q1], on [p2, q2])` between two segments (Ericson, Real-Time
 /// Collision Detection, 5.1.9), robust to degenerate and parallel segments.
-pub fn closest_between_segments(p1: DVec3, q1: DVec3, p2: DVec3, q2: DVec3) -> (DVec3, DVec3) {
+pub(crate) fn closest_between_segments(p1: DVec3, q1: DVec3, p2: DVec3, q2: DVec3) -> (DVec3, DVec3) {
     let d1 = q1 - p1;
     let d2 = q2 - p2;
     let r = p1 - p2;

@@ -56,7 +56,7 @@ pub fn contact(a: &Shape, ra: DQuat, b: &Shape, rb: DQuat, d: DVec3, margin: f64
 
 /// Contact between convex `a` (orientation `ra`) at the origin and the triangle `tri` (vertices
 /// relative to `a`'s centre, world-oriented).
-pub fn contact_triangle(a: &Shape, ra: DQuat, tri: [DVec3; 3], margin: f64) -> Option<Contact> {
+pub(crate) fn contact_triangle(a: &Shape, ra: DQuat, tri: [DVec3; 3], margin: f64) -> Option<Contact> {
     let inv = ra.inverse();
     let t = parry::shape::Triangle::new((inv * tri[0]).as_vec3(), (inv * tri[1]).as_vec3(), (inv * tri[2]).as_vec3());
     let pos12 = Pose::identity();

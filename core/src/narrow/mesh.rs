@@ -1,5 +1,5 @@
 //! A convex shape against a static triangle mesh: parry's BVH finds the triangles under the
-//! shape's bounds, then each triangle is tested with its kernel ([`super::triangle_contact`]), and the
+//! shape's bounds, then each triangle is tested with its kernel (`narrow::triangle_contact`), and the
 //! deepest contact is the pair's contact.
 
 use super::Contact;

@@ -71,7 +71,7 @@ pub enum Kernel {
 
 impl Kernel {
     /// The kernel for a pair of shape families.
-    pub fn for_pair(a: ShapeKind, b: ShapeKind) -> Kernel {
+    pub(crate) fn for_pair(a: ShapeKind, b: ShapeKind) -> Kernel {
         use ShapeKind::*;
         match (a, b) {
             (TriMesh, _) | (_, TriMesh) => Kernel::Mesh,
@@ -132,7 +132,7 @@ pub fn contact(a: &Shape, ra: DQuat, b: &Shape, rb: DQuat, d: DVec3, margin: f64
 /// Contact between `a` at the origin and the triangle `tri` (vertices relative to `a`'s centre),
 /// for height fields and meshes: the analytic sphere and box kernels, GJK for the rest. `None`
 /// when they are farther apart than `margin`; the normal points from `a` to the triangle.
-pub fn triangle_contact(a: &Shape, ra: DQuat, tri: [DVec3; 3], margin: f64) -> Option<Contact> {
+pub(crate) fn triangle_contact(a: &Shape, ra: DQuat, tri: [DVec3; 3], margin: f64) -> Option<Contact> {
     match a {
         Shape::Sphere { radius } => sphere_triangle::contact(*radius, tri[0], tri[1], tri[2]),
         Shape::Cuboid { half_extents } => cuboid_triangle::contact(*half_extents, ra, tri, margin),

@@ -10,7 +10,7 @@ pub fn rotation() -> impl Strategy<Value = DQuat> {
 }
 
 /// The eight corners of a box (half extents `half`, orientation `rot`) centred at `centre`.
-pub fn box_corners(half: DVec3, rot: DQuat, centre: DVec3) -> [DVec3; 8] {
+pub(crate) fn box_corners(half: DVec3, rot: DQuat, centre: DVec3) -> [DVec3; 8] {
     std::array::from_fn(|k| {
         let s = DVec3::new(
             if k & 1 == 0 { -1.0 } else { 1.0 },
@@ -25,7 +25,7 @@ pub fn box_corners(half: DVec3, rot: DQuat, centre: DVec3) -> [DVec3; 8] {
 /// outward unit normal), found by trying the plane through every three points and keeping those
 /// with all points on one side. For a Minkowski difference `A - B` of polytopes this is the
 /// exact penetration depth, and the normal the direction that frees `B`.
-pub fn nearest_facet(points: &[DVec3]) -> (f64, DVec3) {
+pub(crate) fn nearest_facet(points: &[DVec3]) -> (f64, DVec3) {
     let mut best = (f64::INFINITY, DVec3::ZERO);
     for i in 0..points.len() {
         for j in i + 1..points.len() {

@@ -5,7 +5,7 @@ use glam::{DQuat, DVec3};
 
 /// Closest point to `p` on the segment `[a, b]`.
 #[inline]
-pub fn closest_on_segment(p: DVec3, a: DVec3, b: DVec3) -> DVec3 {
+pub(crate) fn closest_on_segment(p: DVec3, a: DVec3, b: DVec3) -> DVec3 {
     let ab = b - a;
     let len2 = ab.length_squared();
     if len2 <= 0.0 {

@@ -4,7 +4,7 @@ use super::{sphere_sphere, Contact};
 use glam::DVec3;
 
 /// Closest point to `p` on triangle `abc`.
-pub fn closest_on_triangle(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> DVec3 {
+pub(crate) fn closest_on_triangle(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> DVec3 {
     let ab = b - a;
     let ac = c - a;
     let ap = p - a;

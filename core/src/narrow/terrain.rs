@@ -1,5 +1,5 @@
 //! A convex shape against the height field: the triangles under the shape's bounds, each tested
-//! with its kernel ([`super::triangle_contact`]); the deepest wins. The field is solid below its
+//! with its kernel (`narrow::triangle_contact`); the deepest wins. The field is solid below its
 //! surface, so a sphere whose centre has sunk under the triangle beneath it still gets a
 //! contact pushing it back up.
 

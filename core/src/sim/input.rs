@@ -79,7 +79,7 @@ pub enum SystemAction {
 }
 
 /// Applies the tick's system actions, in order, before any client input.
-pub fn apply_system(w: &mut World, system: &[SystemAction], out: &mut TickOutput) {
+pub(crate) fn apply_system(w: &mut World, system: &[SystemAction], out: &mut TickOutput) {
     let mut removed = Vec::new();
     for a in system {
         match a {

@@ -20,7 +20,7 @@ fn dynamic_pairs(w: &World, out: &mut Vec<(u32, u32)>) {
 
 /// Reusable buffers for island work (no allocation per tick once warm).
 #[derive(Debug, Default)]
-pub struct Islands {
+pub(crate) struct Islands {
     pairs: Vec<(u32, u32)>,
     parent: Vec<u32>,
     ready: Vec<bool>,
@@ -77,7 +77,7 @@ impl Islands {
     /// speed (or restarts); an island whose awake bodies have all been still for
     /// `sleep_after_ticks` (and may all sleep) falls asleep, velocities zeroed. Sleeping bodies
     /// in an island count as ready. Returns how many bodies fell asleep.
-    pub fn fall_asleep(&mut self, w: &mut World) -> usize {
+    pub(crate) fn fall_asleep(&mut self, w: &mut World) -> usize {
         let cfg = &w.config;
         let after = cfg.sleep_after_ticks;
         if after == 0 {

@@ -107,7 +107,7 @@ fn first_hits(w: &World, rays: &[Ray], best: &mut [Best]) {
 }
 
 /// Distance and unit normal (facing the ray) of the first hit on one shape.
-pub fn cast_shape(
+pub(crate) fn cast_shape(
     shape: &Shape,
     pos: DVec3,
     rot: DQuat,

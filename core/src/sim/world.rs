@@ -108,7 +108,7 @@ impl Classes {
     /// Whether some pair of classes has a rule that stops bodies in each other ([`Rule::Bounce`],
     /// [`Rule::Slide`], [`Rule::Stop`]): the only pairs the settle passes push apart. A world of
     /// triggers, say, has none, and its tick skips asking every pair.
-    pub fn any_stopping(&self) -> bool {
+    pub(crate) fn any_stopping(&self) -> bool {
         self.rules.iter().any(|r| r.stops())
     }
 
@@ -252,7 +252,7 @@ pub struct Touch {
 /// Where a touching pair's two sides were when the list was written: dynamic slots, or
 /// [`TouchHint::NOT_A_BODY`]. See [`World::touching_slots`].
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct TouchHint {
+pub(crate) struct TouchHint {
     /// The pair, as [`Touch::key`].
     pub key: (EntityId, EntityId),
     /// The slots of `key.0` and `key.1`.
@@ -261,7 +261,7 @@ pub struct TouchHint {
 
 impl TouchHint {
     /// A side that is static geometry or terrain.
-    pub const NOT_A_BODY: u32 = u32::MAX;
+    pub(crate) const NOT_A_BODY: u32 = u32::MAX;
 }
 
 impl Touch {
@@ -340,7 +340,7 @@ impl Bodies {
     /// looked up in ascending order, as the sides of the sorted touching list mostly are, each
     /// costs a step or two instead of a binary search over every body. Same answers as
     /// [`Bodies::slot`].
-    pub fn slot_from(&self, cursor: &mut usize, id: EntityId) -> Option<usize> {
+    pub(crate) fn slot_from(&self, cursor: &mut usize, id: EntityId) -> Option<usize> {
         let ids = &self.id;
         let n = ids.len();
         let start = (*cursor).min(n);
@@ -415,7 +415,7 @@ impl Bodies {
     }
 
     /// Velocities to write and the constants beside them, borrowed together.
-    pub fn vel_and_table(&mut self) -> (&mut [DVec3], &BodyTable) {
+    pub(crate) fn vel_and_table(&mut self) -> (&mut [DVec3], &BodyTable) {
         (&mut self.vel, &self.table)
     }
 
@@ -464,7 +464,7 @@ impl World {
     /// ids is taken as is, the rest are searched for. The list's higher ids are in no order,
     /// so searching costs a binary search a pair; the hints make a tick that follows a tick
     /// one load. A map over the pairs, cut over `pool` (each piece starts its own cursors).
-    pub fn touching_slots(&self, out: &mut Vec<[Option<u32>; 2]>, hints: &[TouchHint], pool: &Pool) {
+    pub(crate) fn touching_slots(&self, out: &mut Vec<[Option<u32>; 2]>, hints: &[TouchHint], pool: &Pool) {
         out.clear();
         let b = &self.bodies;
         // A hinted slot holds the id, or the side was static at the hint, and an id that was
@@ -544,7 +544,7 @@ impl World {
 
 /// The 64-bit state hash: words mixed in by rotate, xor and multiply (FxHasher's step).
 #[derive(Debug)]
-pub struct StateHasher(u64);
+pub(crate) struct StateHasher(u64);
 
 impl StateHasher {
     /// A fresh hasher.

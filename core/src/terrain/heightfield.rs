@@ -85,7 +85,7 @@ impl HeightField {
     }
 
     /// The two triangles of cell `(ix, iz)`, counter-clockwise seen from above (normals up).
-    pub fn cell_triangles(&self, ix: usize, iz: usize) -> [[DVec3; 3]; 2] {
+    pub(crate) fn cell_triangles(&self, ix: usize, iz: usize) -> [[DVec3; 3]; 2] {
         let p00 = self.vertex(ix, iz);
         let p10 = self.vertex(ix + 1, iz);
         let p01 = self.vertex(ix, iz + 1);
@@ -96,7 +96,7 @@ impl HeightField {
     }
 
     /// The triangle under `(x, z)`, or `None` outside the field.
-    pub fn triangle_at(&self, x: f64, z: f64) -> Option<[DVec3; 3]> {
+    pub(crate) fn triangle_at(&self, x: f64, z: f64) -> Option<[DVec3; 3]> {
         let u = (x - self.origin.x) / self.cell_x;
         let v = (z - self.origin.z) / self.cell_z;
         if !(u >= 0.0 && v >= 0.0 && u <= (self.nx - 1) as f64 && v <= (self.nz - 1) as f64) {
@@ -110,7 +110,7 @@ impl HeightField {
     }
 
     /// Unnormalised plane normal N = (P1 - P0) x (P2 - P0) of a triangle (points up here).
-    pub fn plane_normal(t: &[DVec3; 3]) -> DVec3 {
+    pub(crate) fn plane_normal(t: &[DVec3; 3]) -> DVec3 {
         (t[1] - t[0]).cross(t[2] - t[0])
     }
 
@@ -127,7 +127,7 @@ impl HeightField {
     }
 
     /// Calls `f` with every triangle whose cell overlaps `bounds` in x and z.
-    pub fn for_each_triangle_in(&self, bounds: &Aabb, mut f: impl FnMut([DVec3; 3])) {
+    pub(crate) fn for_each_triangle_in(&self, bounds: &Aabb, mut f: impl FnMut([DVec3; 3])) {
         if !bounds.overlaps(&self.bounds) {
             return;
         }

@@ -5,7 +5,7 @@ use glam::DVec3;
 
 /// Barycentric weights `(w0, w1, w2)` of `(x, z)` with respect to triangle `t` projected on the
 /// x-z plane, or `None` for a triangle that is degenerate in that projection.
-pub fn barycentric_xz(x: f64, z: f64, t: &[DVec3; 3]) -> Option<[f64; 3]> {
+pub(crate) fn barycentric_xz(x: f64, z: f64, t: &[DVec3; 3]) -> Option<[f64; 3]> {
     let (a, b, c) = (t[0], t[1], t[2]);
     let det = (b.z - c.z) * (a.x - c.x) + (c.x - b.x) * (a.z - c.z);
     if det == 0.0 {
@@ -41,7 +41,7 @@ impl Tin {
 
     /// The first triangle containing `(x, z)` and the weights there. Weights within `-1e-12` of
     /// zero count as inside, so points on shared edges are found.
-    pub fn locate(&self, x: f64, z: f64) -> Option<(usize, [f64; 3])> {
+    pub(crate) fn locate(&self, x: f64, z: f64) -> Option<(usize, [f64; 3])> {
         (0..self.triangles.len()).find_map(|i| {
             let w = barycentric_xz(x, z, &self.triangle(i))?;
             w.iter().all(|&wi| wi >= -1e-12).then_some((i, w))

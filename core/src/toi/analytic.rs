@@ -17,7 +17,7 @@ use glam::DVec3;
 
 /// Result of the swept-sphere test over `t` in `[0, 1]`.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub enum SweptSphere {
+pub(crate) enum SweptSphere {
     /// Already overlapping at `t = 0` (`|A| < r`).
     Overlapping,
     /// First contact at this `t` in `[0, 1]`.
@@ -28,7 +28,7 @@ pub enum SweptSphere {
 
 /// First time in `[0, 1]` at which spheres whose centres are `a = P1 - Q1` apart, with relative
 /// displacement `b = (P2 - P1) - (Q2 - Q1)` over the step, come within `r = rP + rQ`.
-pub fn swept_sphere(a: DVec3, b: DVec3, r: f64) -> SweptSphere {
+pub(crate) fn swept_sphere(a: DVec3, b: DVec3, r: f64) -> SweptSphere {
     let a2 = a.length_squared();
     let c = a2 - r * r;
     if c < 0.0 {

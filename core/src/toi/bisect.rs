@@ -63,7 +63,7 @@ pub fn bisect(
 /// sum of the two shapes' smallest extents). A slow pair (travel within one step) is tested at
 /// the end only, as plain overlap testing does; a fast pair is sampled at `step_m` spacing so it
 /// cannot tunnel, and only such pairs pay for the samples.
-pub fn first_contact(
+pub(crate) fn first_contact(
     t0: f64,
     travel_m: f64,
     step_m: f64,

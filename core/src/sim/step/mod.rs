@@ -31,7 +31,7 @@ use std::time::{Duration, Instant};
 
 /// The other side of a pair.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
-pub enum Partner {
+pub(crate) enum Partner {
     /// A dynamic body (slot).
     Body(u32),
     /// A static body (index into the static world).
