@@ -369,3 +369,41 @@ impl Shape {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `to_spec` of `from_spec` is the spec again, for every kind of shape: the one conversion
+    /// each way loses nothing (checkpoints rely on it for bit-identical restores).
+    #[test]
+    fn spec_round_trips_for_every_kind() {
+        let cube: Vec<[f64; 3]> =
+            (0..8).map(|k| [f64::from(k & 1), f64::from(k >> 1 & 1), f64::from(k >> 2)]).collect();
+        let specs = [
+            ShapeSpec::Sphere { radius_m: 0.5 },
+            ShapeSpec::Capsule { half_height_m: 1.0, radius_m: 0.25 },
+            ShapeSpec::Cuboid { half_extents_m: [1.0, 2.0, 3.0] },
+            ShapeSpec::Ellipsoid { radii_m: [1.0, 0.5, 0.25] },
+            ShapeSpec::Convex { points: cube },
+            ShapeSpec::Mesh { vertices: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], triangles: vec![[0, 1, 2]] },
+        ];
+        for spec in specs {
+            let shape = Shape::from_spec(&spec).unwrap();
+            assert_eq!(shape.to_spec(), spec);
+        }
+    }
+
+    /// What cannot be a shape is refused, naming the field.
+    #[test]
+    fn bad_specs_name_the_field() {
+        let field = |spec: ShapeSpec| Shape::from_spec(&spec).unwrap_err().field;
+        assert_eq!(field(ShapeSpec::Sphere { radius_m: 0.0 }), "radius_m");
+        assert_eq!(field(ShapeSpec::Capsule { half_height_m: f64::NAN, radius_m: 1.0 }), "half_height_m");
+        assert_eq!(field(ShapeSpec::Cuboid { half_extents_m: [1.0, 2e6, 1.0] }), "half_extents_m[1]");
+        assert_eq!(field(ShapeSpec::Convex { points: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] }), "points");
+        assert_eq!(field(ShapeSpec::Convex { points: vec![[0.0, f64::INFINITY, 0.0]] }), "points[0]");
+        let mesh = ShapeSpec::Mesh { vertices: vec![[0.0; 3], [1.0, 0.0, 0.0]], triangles: vec![[0, 1, 2]] };
+        assert_eq!(field(mesh), "triangles[0]");
+    }
+}

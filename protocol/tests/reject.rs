@@ -215,3 +215,53 @@ proptest! {
         }
     }
 }
+
+/// Shapes are one vocabulary, but a client spawns only a sphere, a capsule or a cuboid: an
+/// ellipsoid, a hull or a mesh in a spawn decodes and is refused by value, naming the field, and
+/// an unknown field in a shape is refused when decoded (a misspelt key never becomes a default).
+#[test]
+fn a_spawn_takes_only_the_simple_shapes() {
+    let spawn = |shape| input(vec![Action::SpawnProjectile { shape, position: [0.0; 3], velocity: [1.0, 0.0, 0.0] }]);
+    let refused = [
+        ShapeSpec::Ellipsoid { radii_m: [1.0, 2.0, 1.0] },
+        ShapeSpec::Convex { points: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]] },
+        ShapeSpec::Mesh { vertices: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], triangles: vec![[0, 1, 2]] },
+    ];
+    for shape in refused {
+        for enc in [Encoding::MsgPack, Encoding::Json] {
+            let bytes = encode(&spawn(shape.clone()), enc).unwrap();
+            let err = decode_client(&bytes, enc).unwrap_err();
+            assert_eq!(err.reject_reason(), RejectReason::OutOfRange, "{enc} {shape:?}: {err}");
+            assert!(err.to_string().contains("actions[0].shape"), "{err}");
+        }
+    }
+    for shape in [
+        ShapeSpec::Sphere { radius_m: 0.1 },
+        ShapeSpec::Capsule { half_height_m: 0.5, radius_m: 0.2 },
+        ShapeSpec::Cuboid { half_extents_m: [0.1, 0.2, 0.3] },
+    ] {
+        let bytes = encode(&spawn(shape), Encoding::MsgPack).unwrap();
+        decode_client(&bytes, Encoding::MsgPack).unwrap();
+    }
+    let typo = br#"{"type":"input","client":1,"seq":9,"tick":5,"actions":[{"type":"spawn_projectile","shape":{"type":"sphere","radius_m":0.1,"colour":1},"position":[0,0,0],"velocity":[1,0,0]}]}"#;
+    let err = decode_client(typo, Encoding::Json).unwrap_err();
+    assert!(matches!(err, ProtocolError::Malformed { .. }) && err.to_string().contains("colour"), "{err}");
+}
+
+/// A checkpoint shape written before the shapes were one type (`radius`, `half_height`,
+/// `half_extents`, `radii`) still reads, as the same shape.
+#[test]
+fn old_checkpoint_shape_names_are_read() {
+    let old: [(&str, ShapeSpec); 4] = [
+        (r#"{"type":"sphere","radius":0.5}"#, ShapeSpec::Sphere { radius_m: 0.5 }),
+        (
+            r#"{"type":"capsule","half_height":1.0,"radius":0.25}"#,
+            ShapeSpec::Capsule { half_height_m: 1.0, radius_m: 0.25 },
+        ),
+        (r#"{"type":"cuboid","half_extents":[1.0,2.0,3.0]}"#, ShapeSpec::Cuboid { half_extents_m: [1.0, 2.0, 3.0] }),
+        (r#"{"type":"ellipsoid","radii":[1.0,2.0,3.0]}"#, ShapeSpec::Ellipsoid { radii_m: [1.0, 2.0, 3.0] }),
+    ];
+    for (text, shape) in old {
+        assert_eq!(serde_json::from_str::<ShapeSpec>(text).unwrap(), shape, "{text}");
+    }
+}

@@ -69,13 +69,15 @@ fn through(router: &str) -> zenoh::Session {
     s
 }
 
-/// An `impact-server` process for `scenes`, connected to `router`.
+/// An `impact-server` process for `scenes`, connected to `router` with no other network flag, as
+/// the README's router topology starts them: it listens on nothing, so several on one host (two
+/// on one router in the mesh test) never fight over a port (they did, over 7447, before).
 fn server(name: &str, scenes: &[&str], router: &str, extra: &[&str]) -> Proc {
     let mut cmd = Command::new(server_binary());
     for s in scenes {
         cmd.arg("--scene").arg(impact_core::scene::Scene::bundled_path(s));
     }
-    cmd.args(["--listen", &endpoint(), "--connect", router]).args(extra);
+    cmd.args(["--connect", router]).args(extra);
     Proc::spawn(name, cmd)
 }
 

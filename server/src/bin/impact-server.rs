@@ -53,8 +53,10 @@ struct Args {
     /// Use the general path (GJK for every pair, no analytic kernels): for comparisons.
     #[arg(long)]
     general: bool,
-    /// Zenoh endpoints to listen on (repeatable).
-    #[arg(long, default_value = "tcp/127.0.0.1:7447")]
+    /// Zenoh endpoints to listen on (repeatable). Default: tcp/127.0.0.1:7447, unless the server
+    /// connects somewhere (`--connect`, `--zenoh-config`): then it listens on nothing, so several
+    /// servers on one host can join a router.
+    #[arg(long)]
     listen: Vec<String>,
     /// Zenoh endpoints to connect to, e.g. a router (repeatable).
     #[arg(long)]
@@ -302,11 +304,7 @@ fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>, pool:
         println!("{plan}");
         println!("  core threads    {} (--threads; results do not depend on it)", pool.threads());
         let opts = ServerOptions {
-            listen: if args.zenoh_config.is_some() && args.listen == ["tcp/127.0.0.1:7447"] {
-                Vec::new()
-            } else {
-                args.listen.clone()
-            },
+            listen: listen_endpoints(&args),
             connect: args.connect.clone(),
             zenoh_config: args.zenoh_config.clone(),
             encoding: args.encoding,
@@ -325,7 +323,11 @@ fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>, pool:
         worlds.push((scene, opts));
     }
     let names: Vec<String> = worlds.iter().map(|(s, _)| s.name.to_string()).collect();
-    let listen = worlds.first().map(|(_, o)| o.listen.join(", ")).unwrap_or_default();
+    let listen = match worlds.first().map(|(_, o)| o.listen.join(", ")).unwrap_or_default() {
+        l if !l.is_empty() => l,
+        _ if args.zenoh_config.is_some() => "what the Zenoh configuration file says".to_string(),
+        _ => "nothing (it only connects out)".to_string(),
+    };
     let mut handles = runtime::start_worlds(worlds)?;
     let keys: Vec<String> = names.iter().map(|n| format!("impact/v1/{n}/...")).collect();
     println!("listening on {listen} as {}  (Ctrl-C to stop)", keys.join(", "));
@@ -347,6 +349,19 @@ fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>, pool:
         println!("world {} stopped: final confirmed events published\n{summary}", h.world);
     }
     Ok(())
+}
+
+/// Where the server listens: `--listen` if given; nothing if it connects somewhere (a router, or
+/// a configuration file that says where), so that several servers on one host can join one
+/// router without fighting over a port; otherwise the default, tcp/127.0.0.1:7447.
+fn listen_endpoints(args: &Args) -> Vec<String> {
+    if !args.listen.is_empty() {
+        args.listen.clone()
+    } else if !args.connect.is_empty() || args.zenoh_config.is_some() {
+        Vec::new()
+    } else {
+        vec!["tcp/127.0.0.1:7447".to_string()]
+    }
 }
 
 /// One line about the scene: name, file, bodies, tick rate and rollback window.

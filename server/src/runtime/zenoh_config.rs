@@ -9,8 +9,9 @@ pub const SERVER_LEASE_MS: &str = "1500";
 
 /// The Zenoh configuration for a process of impact: from `file` if given (used as is, except
 /// that `listen`/`connect` given on the command line are added), otherwise a peer that listens
-/// on `listen`, connects to `connect`, and does no multicast scouting (so a test or a demo never
-/// talks to anything it did not name).
+/// on `listen` (on nothing when it is empty: not on Zenoh's default of every interface), connects
+/// to `connect`, and does no multicast scouting (so a test or a demo never talks to anything it
+/// did not name).
 pub fn zenoh_config(file: Option<&Path>, listen: &[String], connect: &[String]) -> Result<zenoh::Config, RuntimeError> {
     let err = |what: &str, e: zenoh::Error| RuntimeError::Zenoh(format!("{what}: {e}"));
     let mut c = match file {
@@ -27,7 +28,7 @@ pub fn zenoh_config(file: Option<&Path>, listen: &[String], connect: &[String]) 
         }
     };
     let list = |v: &[String]| serde_json::to_string(v).unwrap_or_else(|_| "[]".into());
-    if !listen.is_empty() {
+    if !listen.is_empty() || file.is_none() {
         c.insert_json5("listen/endpoints", &list(listen)).map_err(|e| err("listen", e))?;
     }
     if !connect.is_empty() {
