@@ -29,6 +29,23 @@ fn shape_error(field: impl Into<String>, detail: impl Into<String>) -> ShapeErro
     ShapeError { field: field.into(), detail: detail.into() }
 }
 
+/// Whether `points` span a volume: four of them are not coplanar (to within a part in 10^9 of
+/// their extent). A flat hull has no volume, so a dynamic body of it would have no mass; parry
+/// builds one from three points all the same.
+fn spans_volume(points: &[DVec3]) -> bool {
+    let Some(&a) = points.first() else { return false };
+    let farthest = |f: &dyn Fn(DVec3) -> f64| points.iter().copied().max_by(|p, q| f(*p).total_cmp(&f(*q)));
+    let Some(b) = farthest(&|p| (p - a).length_squared()) else { return false };
+    let scale = (b - a).length();
+    let line = (b - a).normalize_or_zero();
+    let off_line = |p: DVec3| (p - a).reject_from_normalized(line).length();
+    let Some(c) = farthest(&off_line) else { return false };
+    let normal = (b - a).cross(c - a).normalize_or_zero();
+    let off_plane = |p: DVec3| (p - a).dot(normal).abs();
+    let eps = 1e-9 * scale;
+    scale > 0.0 && off_line(c) > eps && farthest(&off_plane).is_some_and(|d| off_plane(d) > eps)
+}
+
 /// A collision shape in its local frame, prepared for the tick. Lengths in metres.
 ///
 /// Its own type beside the wire's [`ShapeSpec`] because it carries what is built once and kept:
@@ -180,8 +197,11 @@ impl Shape {
                 Shape::Cuboid { half_extents: dims(half_extents_m, "half_extents_m")? }
             }
             ShapeSpec::Ellipsoid { radii_m } => Shape::Ellipsoid { radii: dims(radii_m, "radii_m")? },
-            ShapeSpec::Convex { points: p } => Shape::convex_hull(&points(p, "points")?)
-                .ok_or_else(|| shape_error("points", "needs at least 4 points that are not coplanar"))?,
+            ShapeSpec::Convex { points: p } => {
+                let p = points(p, "points")?;
+                let hull = spans_volume(&p).then(|| Shape::convex_hull(&p)).flatten();
+                hull.ok_or_else(|| shape_error("points", "needs at least 4 points that are not coplanar"))?
+            }
             ShapeSpec::Mesh { vertices, triangles } => {
                 let v = points(vertices, "vertices")?;
                 if let Some(k) = triangles.iter().position(|t| t.iter().any(|&i| i as usize >= v.len())) {
@@ -402,6 +422,9 @@ mod tests {
         assert_eq!(field(ShapeSpec::Capsule { half_height_m: f64::NAN, radius_m: 1.0 }), "half_height_m");
         assert_eq!(field(ShapeSpec::Cuboid { half_extents_m: [1.0, 2e6, 1.0] }), "half_extents_m[1]");
         assert_eq!(field(ShapeSpec::Convex { points: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] }), "points");
+        // Flat: parry builds a hull of these, but it has no volume, so a body of it no mass.
+        let square = vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.5, 0.5, 1e-12]];
+        assert_eq!(field(ShapeSpec::Convex { points: square }), "points");
         assert_eq!(field(ShapeSpec::Convex { points: vec![[0.0, f64::INFINITY, 0.0]] }), "points[0]");
         let mesh = ShapeSpec::Mesh { vertices: vec![[0.0; 3], [1.0, 0.0, 0.0]], triangles: vec![[0, 1, 2]] };
         assert_eq!(field(mesh), "triangles[0]");

@@ -70,8 +70,9 @@ fn through(router: &str) -> zenoh::Session {
 }
 
 /// An `impact-server` process for `scenes`, connected to `router` with no other network flag, as
-/// the README's router topology starts them: it listens on nothing, so several on one host (two
-/// on one router in the mesh test) never fight over a port (they did, over 7447, before).
+/// the README's router topology starts them: it listens on an ephemeral loopback port, so several
+/// on one host (two on one router in the mesh test) never fight over a port (they did, over 7447,
+/// before), and the standby still reaches its primary.
 fn server(name: &str, scenes: &[&str], router: &str, extra: &[&str]) -> Proc {
     let mut cmd = Command::new(server_binary());
     for s in scenes {

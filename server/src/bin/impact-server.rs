@@ -53,9 +53,9 @@ struct Args {
     /// Use the general path (GJK for every pair, no analytic kernels): for comparisons.
     #[arg(long)]
     general: bool,
-    /// Zenoh endpoints to listen on (repeatable). Default: tcp/127.0.0.1:7447, unless the server
-    /// connects somewhere (`--connect`, `--zenoh-config`): then it listens on nothing, so several
-    /// servers on one host can join a router.
+    /// Zenoh endpoints to listen on (repeatable). Default: tcp/127.0.0.1:7447; with `--connect`,
+    /// an ephemeral loopback port (tcp/127.0.0.1:0), so several servers on one host can join a
+    /// router; with `--zenoh-config`, what the file says.
     #[arg(long)]
     listen: Vec<String>,
     /// Zenoh endpoints to connect to, e.g. a router (repeatable).
@@ -304,7 +304,7 @@ fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>, pool:
         println!("{plan}");
         println!("  core threads    {} (--threads; results do not depend on it)", pool.threads());
         let opts = ServerOptions {
-            listen: listen_endpoints(&args),
+            listen: listen_endpoints(args),
             connect: args.connect.clone(),
             zenoh_config: args.zenoh_config.clone(),
             encoding: args.encoding,
@@ -325,8 +325,7 @@ fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>, pool:
     let names: Vec<String> = worlds.iter().map(|(s, _)| s.name.to_string()).collect();
     let listen = match worlds.first().map(|(_, o)| o.listen.join(", ")).unwrap_or_default() {
         l if !l.is_empty() => l,
-        _ if args.zenoh_config.is_some() => "what the Zenoh configuration file says".to_string(),
-        _ => "nothing (it only connects out)".to_string(),
+        _ => "what the Zenoh configuration file says".to_string(),
     };
     let mut handles = runtime::start_worlds(worlds)?;
     let keys: Vec<String> = names.iter().map(|n| format!("impact/v1/{n}/...")).collect();
@@ -351,14 +350,19 @@ fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>, pool:
     Ok(())
 }
 
-/// Where the server listens: `--listen` if given; nothing if it connects somewhere (a router, or
-/// a configuration file that says where), so that several servers on one host can join one
-/// router without fighting over a port; otherwise the default, tcp/127.0.0.1:7447.
+/// Where the server listens: `--listen` if given; what the configuration file says with
+/// `--zenoh-config`; with `--connect`, an ephemeral port on loopback, so that several servers on
+/// one host join one router without fighting over a port, while the peers on that host (a
+/// standby, a tool) still reach it directly, as Zenoh peers expect to (a router does not relay
+/// between two peers; a peer that listened nowhere could not be followed); otherwise the default,
+/// tcp/127.0.0.1:7447.
 fn listen_endpoints(args: &Args) -> Vec<String> {
     if !args.listen.is_empty() {
         args.listen.clone()
-    } else if !args.connect.is_empty() || args.zenoh_config.is_some() {
+    } else if args.zenoh_config.is_some() {
         Vec::new()
+    } else if !args.connect.is_empty() {
+        vec!["tcp/127.0.0.1:0".to_string()]
     } else {
         vec!["tcp/127.0.0.1:7447".to_string()]
     }

@@ -11,7 +11,8 @@ pub const SERVER_LEASE_MS: &str = "1500";
 /// that `listen`/`connect` given on the command line are added), otherwise a peer that listens
 /// on `listen` (on nothing when it is empty: not on Zenoh's default of every interface), connects
 /// to `connect`, and does no multicast scouting (so a test or a demo never talks to anything it
-/// did not name).
+/// did not name). A peer that listens on nothing can reach others but cannot be reached: peers
+/// talk to each other directly, and a router between them does not relay.
 pub fn zenoh_config(file: Option<&Path>, listen: &[String], connect: &[String]) -> Result<zenoh::Config, RuntimeError> {
     let err = |what: &str, e: zenoh::Error| RuntimeError::Zenoh(format!("{what}: {e}"));
     let mut c = match file {
