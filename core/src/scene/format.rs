@@ -33,24 +33,6 @@ pub struct SceneFile {
     pub spawn: Option<SpawnDef>,
 }
 
-fn default_tick_hz() -> u32 {
-    64
-}
-fn default_rollback_ms() -> u32 {
-    250
-}
-fn default_max_bodies() -> u32 {
-    100_000
-}
-fn default_restitution() -> f64 {
-    1.0
-}
-fn default_slop() -> f64 {
-    1.0e-4
-}
-fn default_bounce_threshold() -> f64 {
-    0.5
-}
 fn default_max_speed() -> f64 {
     100.0
 }
@@ -60,72 +42,45 @@ fn default_true() -> bool {
 fn default_density() -> f64 {
     1000.0
 }
-fn default_lead() -> u32 {
-    8
-}
-fn default_sleep_speed() -> f64 {
-    0.05
-}
-fn default_sleep_after() -> f64 {
-    0.5
-}
-fn default_resolutions() -> u32 {
-    100_000
-}
 
-/// `[world]`.
+/// `[world]`, as written: a key left out is `None`, and [`super::settings`] resolves it (and
+/// says where each value came from, for `impact-server --explain`).
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct WorldDef {
     /// World name (the `{world}` key segment): `[a-z0-9_-]`, 1 to 64 characters.
     pub name: String,
-    /// Ticks per second (default 64: a power of two makes dt exact).
-    #[serde(default = "default_tick_hz")]
-    pub tick_hz: u32,
-    /// Gravity, m/s^2 (default none).
-    #[serde(default)]
-    pub gravity: [f64; 3],
-    /// Rollback window, ms (default 250).
-    #[serde(default = "default_rollback_ms")]
-    pub rollback_ms: u32,
-    /// How far ahead of the server an input may be stamped, ticks (default 8).
-    #[serde(default = "default_lead")]
-    pub input_lead_ticks: u32,
-    /// How far back a hitscan ray is rewound at most, ms (default: the rollback window). Like
-    /// Source's `sv_maxunlag`: a shooter with a worse connection than this shoots at a world
-    /// younger than the one it saw.
-    #[serde(default)]
+    /// Ticks per second.
+    pub tick_hz: Option<u32>,
+    /// Gravity, m/s^2.
+    pub gravity: Option<[f64; 3]>,
+    /// Rollback window, ms.
+    pub rollback_ms: Option<u32>,
+    /// How far ahead of the server an input may be stamped, ticks.
+    pub input_lead_ticks: Option<u32>,
+    /// How far back a hitscan ray is rewound at most, ms. Like Source's `sv_maxunlag`: a shooter
+    /// with a worse connection than this shoots at a world younger than the one it saw.
     pub max_rewind_ms: Option<u32>,
-    /// Most bodies (default 100,000).
-    #[serde(default = "default_max_bodies")]
-    pub max_bodies: u32,
-    /// Response for class pairs with no `[[response]]` entry (default bounce).
-    #[serde(default)]
-    pub default_response: ResponseKind,
-    /// Restitution for the default bounce (default 1).
-    #[serde(default = "default_restitution")]
-    pub restitution: f64,
-    /// Bodies closer than this count as touching, m (default 1e-4).
-    #[serde(default = "default_slop")]
-    pub contact_slop_m: f64,
-    /// Closing speed at or below which a bounce does not rebound, m/s (default 0.5).
-    #[serde(default = "default_bounce_threshold")]
-    pub bounce_threshold_mps: f64,
-    /// Time-of-impact tolerance as a fraction of a tick (default 2^-15).
-    #[serde(default)]
+    /// Most bodies.
+    pub max_bodies: Option<u32>,
+    /// Response for class pairs with no `[[response]]` entry.
+    pub default_response: Option<ResponseKind>,
+    /// Restitution for the default bounce.
+    pub restitution: Option<f64>,
+    /// Bodies closer than this count as touching, m.
+    pub contact_slop_m: Option<f64>,
+    /// Closing speed at or below which a bounce does not rebound, m/s.
+    pub bounce_threshold_mps: Option<f64>,
+    /// Time-of-impact tolerance as a fraction of a tick.
     pub toi_tolerance: Option<f64>,
-    /// Most contact resolutions in one tick (default 100,000).
-    #[serde(default = "default_resolutions")]
-    pub max_resolutions_per_tick: u32,
-    /// Coulomb friction of resting contacts (default 0: frictionless).
-    #[serde(default)]
-    pub friction: f64,
-    /// A body slower than this counts as still, m/s (default 0.05).
-    #[serde(default = "default_sleep_speed")]
-    pub sleep_speed_mps: f64,
-    /// An island still for this long falls asleep, s (default 0.5; 0 disables sleeping).
-    #[serde(default = "default_sleep_after")]
-    pub sleep_after_s: f64,
+    /// Most contact resolutions in one tick.
+    pub max_resolutions_per_tick: Option<u32>,
+    /// Coulomb friction of resting contacts.
+    pub friction: Option<f64>,
+    /// A body slower than this counts as still, m/s.
+    pub sleep_speed_mps: Option<f64>,
+    /// An island still for this long falls asleep, s (0 disables sleeping).
+    pub sleep_after_s: Option<f64>,
 }
 
 /// `[[class]]`.

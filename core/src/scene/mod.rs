@@ -3,6 +3,7 @@
 
 pub mod format;
 pub mod random;
+pub mod settings;
 
 use crate::broadphase::StaticIndex;
 use crate::geometry::Shape;
@@ -13,6 +14,7 @@ use format::*;
 use glam::{DQuat, DVec3};
 use impact_protocol::{ClientId, EntityId, Tick, WorldId};
 use random::SplitMix64;
+use settings::WorldKeys;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -37,6 +39,8 @@ pub struct Scene {
     pub world: World,
     /// Avatar rules, if clients get avatars.
     pub avatar: Option<AvatarRule>,
+    /// Every `[world]` key as resolved, and where each value came from (`--explain`).
+    pub settings: Vec<settings::Setting>,
 }
 
 /// How an avatar is made for a client that joins.
@@ -145,19 +149,20 @@ impl Builder {
     /// The scene `def` describes, checked entry by entry: the world's keys, the classes and their
     /// responses, the terrain, the bodies (placed in file order, ids ascending), the spawn rules.
     fn build(&self, def: &SceneFile) -> Result<Scene, SceneError> {
-        let w = &def.world;
-        let name = WorldId::new(w.name.clone()).map_err(|e| self.err("world.name", e.to_string()))?;
+        let name = WorldId::new(def.world.name.clone()).map_err(|e| self.err("world.name", e.to_string()))?;
+        let (keys, settings) = settings::resolve(&def.world);
+        let w = &keys;
         let bisect = self.world_keys(w)?;
-        let (mut classes, immovable) = self.classes(def)?;
-        self.responses(def, &mut classes)?;
+        let (mut classes, immovable) = self.classes(def, w)?;
+        self.responses(def, w, &mut classes)?;
         // Bodies, in file order: [[body]], then [[array]], then [[scatter]]. Ids ascend in that
         // order; the terrain, if any, is entity 0.
         let mut next_id: u32 = 0;
         let terrain = self.terrain(def, &classes, &mut next_id)?;
         let mut items: Vec<Item> = Vec::new();
         self.bodies(def, &classes, &mut items)?;
-        self.arrays(def, &classes, &mut items)?;
-        self.scatters(def, &classes, &mut items)?;
+        self.arrays(def, w, &classes, &mut items)?;
+        self.scatters(def, w, &classes, &mut items)?;
         let total = items.len() + usize::from(terrain.is_some());
         if total > w.max_bodies as usize {
             return Err(self
@@ -175,11 +180,11 @@ impl Builder {
             statics: Arc::new(static_world),
             config: Arc::new(config),
         };
-        Ok(Scene { name, world, avatar })
+        Ok(Scene { name, world, avatar, settings })
     }
 
     /// Checks `[world]`'s keys; the bisection settings they give.
-    fn world_keys(&self, w: &WorldDef) -> Result<BisectConfig, SceneError> {
+    fn world_keys(&self, w: &WorldKeys) -> Result<BisectConfig, SceneError> {
         if w.max_bodies > MAX_SCENE_BODIES {
             return Err(
                 self.err("world.max_bodies", format!("{} is over the limit of {MAX_SCENE_BODIES}", w.max_bodies))
@@ -194,13 +199,11 @@ impl Builder {
         if !(w.contact_slop_m.is_finite() && w.contact_slop_m > 0.0 && w.contact_slop_m < 1.0) {
             return Err(self.err("world.contact_slop_m", format!("{} must be in (0, 1) m", w.contact_slop_m)));
         }
-        let mut bisect = BisectConfig::default();
-        if let Some(tol) = w.toi_tolerance {
-            if !(tol.is_finite() && tol > 0.0 && tol <= 0.5) {
-                return Err(self.err("world.toi_tolerance", format!("{tol} must be in (0, 0.5] (fraction of a tick)")));
-            }
-            bisect.tolerance = tol;
+        let tol = w.toi_tolerance;
+        if !(tol.is_finite() && tol > 0.0 && tol <= 0.5) {
+            return Err(self.err("world.toi_tolerance", format!("{tol} must be in (0, 0.5] (fraction of a tick)")));
         }
+        let bisect = BisectConfig { tolerance: tol, ..BisectConfig::default() };
         if !(w.bounce_threshold_mps.is_finite() && w.bounce_threshold_mps >= 0.0) {
             return Err(self.err("world.bounce_threshold_mps", "must be finite and >= 0"));
         }
@@ -222,8 +225,7 @@ impl Builder {
     }
 
     /// The classes, with the default response, and which are immovable (static, or marked so).
-    fn classes(&self, def: &SceneFile) -> Result<(Classes, Vec<bool>), SceneError> {
-        let w = &def.world;
+    fn classes(&self, def: &SceneFile, w: &WorldKeys) -> Result<(Classes, Vec<bool>), SceneError> {
         if def.classes.is_empty() {
             return Err(self.err("class", "a scene needs at least one [[class]]"));
         }
@@ -256,8 +258,7 @@ impl Builder {
     }
 
     /// Sets the rule of each `[[response]]` on `classes`.
-    fn responses(&self, def: &SceneFile, classes: &mut Classes) -> Result<(), SceneError> {
-        let w = &def.world;
+    fn responses(&self, def: &SceneFile, w: &WorldKeys, classes: &mut Classes) -> Result<(), SceneError> {
         for (k, r) in def.responses.iter().enumerate() {
             let entry = format!("response[{k}]");
             let a = self.class(classes, &r.between[0], &format!("{entry}.between[0]"))?;
@@ -351,8 +352,13 @@ impl Builder {
     }
 
     /// `[[array]]` entries: a lattice of items each.
-    fn arrays(&self, def: &SceneFile, classes: &Classes, items: &mut Vec<Item>) -> Result<(), SceneError> {
-        let w = &def.world;
+    fn arrays(
+        &self,
+        def: &SceneFile,
+        w: &WorldKeys,
+        classes: &Classes,
+        items: &mut Vec<Item>,
+    ) -> Result<(), SceneError> {
         for (k, a) in def.arrays.iter().enumerate() {
             let entry = format!("array[{k}]");
             let class = self.class(classes, &a.class, &format!("{entry}.class"))?;
@@ -387,8 +393,13 @@ impl Builder {
     }
 
     /// `[[scatter]]` entries: items placed by a seeded generator.
-    fn scatters(&self, def: &SceneFile, classes: &Classes, items: &mut Vec<Item>) -> Result<(), SceneError> {
-        let w = &def.world;
+    fn scatters(
+        &self,
+        def: &SceneFile,
+        w: &WorldKeys,
+        classes: &Classes,
+        items: &mut Vec<Item>,
+    ) -> Result<(), SceneError> {
         for (k, s) in def.scatters.iter().enumerate() {
             let entry = format!("scatter[{k}]");
             let class = self.class(classes, &s.class, &format!("{entry}.class"))?;
@@ -498,7 +509,7 @@ impl Builder {
 }
 
 /// The core's configuration from `[world]`, the classes and the spawn rules.
-fn sim_config(w: &WorldDef, classes: Classes, bisect: BisectConfig, projectile_class: Option<ClassId>) -> SimConfig {
+fn sim_config(w: &WorldKeys, classes: Classes, bisect: BisectConfig, projectile_class: Option<ClassId>) -> SimConfig {
     let dt = 1.0 / f64::from(w.tick_hz);
     let window_ticks = crate::sim::world::window_ticks(w.rollback_ms, w.tick_hz);
     SimConfig {
@@ -521,7 +532,7 @@ fn sim_config(w: &WorldDef, classes: Classes, bisect: BisectConfig, projectile_c
         max_bodies: w.max_bodies,
         window_ticks,
         input_lead_ticks: w.input_lead_ticks,
-        max_rewind_ticks: crate::sim::world::window_ticks(w.max_rewind_ms.unwrap_or(w.rollback_ms), w.tick_hz),
+        max_rewind_ticks: crate::sim::world::window_ticks(w.max_rewind_ms, w.tick_hz),
         projectile_class,
     }
 }

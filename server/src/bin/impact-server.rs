@@ -4,6 +4,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
+use impact_core::scene::settings::{Setting, Source};
 use impact_core::scene::Scene;
 use impact_core::sim::world::window_ticks;
 use impact_core::sim::{Plan, Pool};
@@ -124,6 +125,10 @@ struct Args {
     /// Serve Prometheus metrics at http://ADDR/metrics, e.g. 127.0.0.1:9898.
     #[arg(long)]
     metrics: Option<String>,
+    /// Print every `[world]` value each scene runs with and where it came from (the scene, a
+    /// default and why, or a flag), and exit.
+    #[arg(long)]
+    explain: bool,
     /// Threads for the core's parallel stages (bounds, broadphase, narrowphase, events), shared
     /// by the process's worlds. Results never depend on it. Default 1: on the 2-core machine
     /// measured, 2 threads were faster in some runs and slower in others (BENCHMARKS.md,
@@ -146,6 +151,15 @@ fn main() -> Result<()> {
     let mut scenes = Vec::new();
     for path in &args.scene {
         scenes.push((load_scene(path, &args)?, path.clone()));
+    }
+    if args.explain {
+        for (scene, path) in &scenes {
+            println!("world {} ({}), [world] as it runs:", scene.name, path.display());
+            for s in &scene.settings {
+                println!("  {s}");
+            }
+        }
+        return Ok(());
     }
     let threads = args.threads.map_or(1, usize::from);
     let pool = Pool::new(threads).map_err(anyhow::Error::msg)?;
@@ -235,10 +249,21 @@ fn load_scene(path: &Path, args: &Args) -> Result<Scene> {
             }
             cfg.tick_hz = hz;
             cfg.dt = 1.0 / f64::from(hz);
+            overridden(&mut scene.settings, "tick_hz", hz.to_string(), "--tick-hz");
         }
         cfg.window_ticks = window_ticks(ms, cfg.tick_hz);
+        if let Some(ms) = args.rollback_ms {
+            overridden(&mut scene.settings, "rollback_ms", ms.to_string(), "--rollback-ms");
+        }
     }
     Ok(scene)
+}
+
+/// Records that `flag` set `key` to `value`, for `--explain`.
+fn overridden(settings: &mut [Setting], key: &str, value: String, flag: &'static str) {
+    if let Some(s) = settings.iter_mut().find(|s| s.key == key) {
+        *s = Setting { key: s.key, value, source: Source::Flag, why: flag };
+    }
 }
 
 /// `--offline --replay FILE`: re-simulates a recording and checks every state hash; fails on the
