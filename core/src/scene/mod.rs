@@ -4,6 +4,7 @@
 pub mod format;
 pub mod random;
 pub mod settings;
+pub mod warnings;
 
 use crate::broadphase::StaticIndex;
 use crate::geometry::Shape;
@@ -41,6 +42,8 @@ pub struct Scene {
     pub avatar: Option<AvatarRule>,
     /// Every `[world]` key as resolved, and where each value came from (`--explain`).
     pub settings: Vec<settings::Setting>,
+    /// What the keys contradict: a world that loads but cannot come to rest.
+    pub warnings: Vec<warnings::SceneWarning>,
 }
 
 /// How an avatar is made for a client that joins.
@@ -180,7 +183,8 @@ impl Builder {
             statics: Arc::new(static_world),
             config: Arc::new(config),
         };
-        Ok(Scene { name, world, avatar, settings })
+        let warnings = warnings::check(&keys, &world);
+        Ok(Scene { name, world, avatar, settings, warnings })
     }
 
     /// Checks `[world]`'s keys; the bisection settings they give.

@@ -158,6 +158,9 @@ fn main() -> Result<()> {
             for s in &scene.settings {
                 println!("  {s}");
             }
+            for w in &scene.warnings {
+                println!("  {w}");
+            }
         }
         return Ok(());
     }
@@ -234,6 +237,9 @@ fn main() -> Result<()> {
 /// Loads a scene and applies the command line's overrides (world name, tick rate, window).
 fn load_scene(path: &Path, args: &Args) -> Result<Scene> {
     let mut scene = Scene::load(path).map_err(anyhow::Error::msg)?;
+    for w in &scene.warnings {
+        eprintln!("{}: {w}", path.display());
+    }
     if let Some(name) = &args.world {
         scene.name = WorldId::new(name.clone()).map_err(anyhow::Error::msg)?;
     }

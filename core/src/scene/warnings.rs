@@ -1,0 +1,170 @@
+//! Keys that contradict each other or the scene: a world that loads but cannot come to rest.
+//! Each is a named warning with the value that would work; impossible values stay load errors.
+
+use super::format::ResponseKind;
+use super::settings::WorldKeys;
+use crate::geometry::Shape;
+use crate::sim::World;
+use glam::DVec3;
+use std::fmt;
+
+/// A warning about a loaded scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneWarning {
+    /// Its name, stable for scripts and searches: `slop_below_free_fall`,
+    /// `elastic_under_gravity`, `sleep_above_free_fall_speed`, `friction_below_slope`.
+    pub name: &'static str,
+    /// The key it is about, as written in a scene file (`world.contact_slop_m`).
+    pub key: &'static str,
+    /// What is wrong and the value that would work.
+    pub detail: String,
+}
+
+impl fmt::Display for SceneWarning {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "warning[{}]: {}: {}", self.name, self.key, self.detail)
+    }
+}
+
+/// The steepest slope, in degrees, a static box may have and still count as ground something
+/// rests on (steeper is a wall).
+const MAX_GROUND_SLOPE_DEG: f64 = 60.0;
+
+/// `value` rounded up to two significant figures, for a suggestion a person would type.
+fn round_up(value: f64) -> f64 {
+    if value <= 0.0 {
+        return value;
+    }
+    let step = 10f64.powf(value.log10().floor() - 1.0);
+    (value / step).ceil() * step
+}
+
+/// What `keys` contradict in `world` (empty for a scene that can rest, or one without gravity).
+pub fn check(keys: &WorldKeys, world: &World) -> Vec<SceneWarning> {
+    let cfg = &world.config;
+    let g = cfg.gravity.length();
+    let falls = cfg.classes.props.iter().any(|p| p.gravity && !p.is_static);
+    if g == 0.0 || !falls {
+        return Vec::new();
+    }
+    let mut out = Vec::new();
+    let fall_m = g * cfg.dt * cfg.dt;
+    if keys.contact_slop_m < fall_m {
+        out.push(SceneWarning {
+            name: "slop_below_free_fall",
+            key: "world.contact_slop_m",
+            detail: format!(
+                "{} m is below one tick of free fall ({fall_m:.4} m at {} Hz): a resting contact that lifts \
+                 a hair is dropped and comes back as an impact, so stacks and piles may never settle; {} \
+                 would work",
+                keys.contact_slop_m,
+                cfg.tick_hz,
+                round_up(1.25 * fall_m)
+            ),
+        });
+    }
+    if keys.default_response == ResponseKind::Bounce && keys.restitution >= 0.9 && cfg.sleep_after_ticks > 0 {
+        out.push(SceneWarning {
+            name: "elastic_under_gravity",
+            key: "world.restitution",
+            detail: format!(
+                "{} under gravity: a body that lands bounces back nearly as high, so bodies never come \
+                 to rest or sleep; 0 would work (rapier, Box2D and Jolt default to it)",
+                keys.restitution
+            ),
+        });
+    }
+    let fall_mps = g * cfg.dt;
+    if keys.sleep_speed_mps > fall_mps {
+        out.push(SceneWarning {
+            name: "sleep_above_free_fall_speed",
+            key: "world.sleep_speed_mps",
+            detail: format!(
+                "{} m/s is above the speed gravity gives in one tick ({fall_mps:.3} m/s at {} Hz): a body \
+                 at the top of its fall counts as still and may fall asleep in the air; {} would work",
+                keys.sleep_speed_mps,
+                cfg.tick_hz,
+                round_up(fall_mps / 3.0)
+            ),
+        });
+    }
+    if let Some(deg) = steepest_ground(world, cfg.gravity / g) {
+        let needed = deg.to_radians().tan();
+        if keys.friction < needed {
+            out.push(SceneWarning {
+                name: "friction_below_slope",
+                key: "world.friction",
+                detail: format!(
+                    "{} cannot hold a body on the steepest static slope ({deg:.1} degrees, which needs {needed:.2}): \
+                     bodies on it slide forever and never sleep; {} would work, or a steeper slope is a wall",
+                    keys.friction,
+                    round_up(needed * 1.1)
+                ),
+            });
+        }
+    }
+    out
+}
+
+/// The steepest top face of a static box that is ground (tilted, but less than
+/// [`MAX_GROUND_SLOPE_DEG`]), in degrees from level; `down` is gravity's direction.
+fn steepest_ground(world: &World, down: DVec3) -> Option<f64> {
+    let s = &world.statics;
+    let up = -down;
+    let mut steepest: Option<f64> = None;
+    for (shape, rot) in s.shape.iter().zip(&s.rot) {
+        if !matches!(shape, Shape::Cuboid { .. }) {
+            continue;
+        }
+        // The face whose normal is nearest to up is the one a body rests on.
+        let cos = [DVec3::X, DVec3::Y, DVec3::Z].iter().map(|a| (*rot * *a).dot(up).abs()).fold(0.0, f64::max);
+        let deg = cos.clamp(-1.0, 1.0).acos().to_degrees();
+        if deg > 0.5 && deg < MAX_GROUND_SLOPE_DEG {
+            steepest = Some(steepest.map_or(deg, |d| d.max(deg)));
+        }
+    }
+    steepest
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::scene::Scene;
+
+    fn names(text: &str) -> Vec<&'static str> {
+        Scene::parse(text, "<test>").unwrap().warnings.iter().map(|w| w.name).collect()
+    }
+
+    const PILE: &str = "[world]\nname = \"p\"\ngravity = [0.0, -9.81, 0.0]\n[[class]]\nname = \"ball\"\n\
+        [[class]]\nname = \"floor\"\nstatic = true\n\
+        [[body]]\nclass = \"floor\"\nshape = { type = \"cuboid\", half_extents_m = [10.0, 0.5, 10.0] }\nposition = [0.0, -0.5, 0.0]\n\
+        [[body]]\nclass = \"ball\"\nshape = { type = \"sphere\", radius_m = 0.5 }\nposition = [0.0, 2.0, 0.0]\n";
+
+    /// A pile written with no tuning keys is told why it will not rest; the same pile with the
+    /// keys that work is not; a world without gravity never is.
+    #[test]
+    fn a_pile_that_cannot_rest_is_told_so() {
+        assert_eq!(names(PILE), ["slop_below_free_fall", "elastic_under_gravity"]);
+        let tuned = PILE.replace(
+            "gravity = [0.0, -9.81, 0.0]",
+            "gravity = [0.0, -9.81, 0.0]\nrestitution = 0.0\ncontact_slop_m = 0.003",
+        );
+        assert!(names(&tuned).is_empty(), "{:?}", names(&tuned));
+        assert!(names(&PILE.replace("gravity = [0.0, -9.81, 0.0]", "")).is_empty());
+        let fast = PILE.replace("gravity = [0.0, -9.81, 0.0]", "gravity = [0.0, -9.81, 0.0]\nsleep_speed_mps = 0.5");
+        assert!(names(&fast).contains(&"sleep_above_free_fall_speed"));
+    }
+
+    /// A 40 degree ramp needs friction above tan 40 = 0.84 to hold a body; a wall is not a ramp.
+    #[test]
+    fn a_ramp_steeper_than_the_friction_holds_is_told_so() {
+        let ramp = |deg: f64, friction: f64| {
+            PILE.replace("gravity = [0.0, -9.81, 0.0]", &format!("gravity = [0.0, -9.81, 0.0]\nrestitution = 0.0\ncontact_slop_m = 0.003\nfriction = {friction}"))
+                + &format!("[[body]]\nclass = \"floor\"\nshape = {{ type = \"cuboid\", half_extents_m = [4.0, 0.2, 2.0] }}\nposition = [0.0, 2.0, 5.0]\nrotation_deg = [0.0, 0.0, {deg}]\n")
+        };
+        let warned = Scene::parse(&ramp(40.0, 0.5), "<t>").unwrap().warnings;
+        assert_eq!(warned.len(), 1, "{warned:?}");
+        assert!(warned[0].detail.contains("40.0 degrees") && warned[0].detail.contains("0.84"), "{}", warned[0]);
+        assert!(names(&ramp(40.0, 0.9)).is_empty());
+        assert!(names(&ramp(90.0, 0.5)).is_empty(), "a wall");
+    }
+}
