@@ -91,7 +91,8 @@ pub struct ConvexHull {
     pub parry: parry::shape::ConvexPolyhedron,
 }
 
-/// The shape families a plan chooses kernels by.
+/// The shape families a plan chooses kernels by. The state stream's `BodyShape` names the same
+/// families for drawing, plus terrain.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum ShapeKind {
     /// [`Shape::Sphere`].

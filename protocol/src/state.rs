@@ -10,7 +10,10 @@
 use crate::ids::{ClientId, EntityId, Tick};
 use serde::{Deserialize, Serialize};
 
-/// The shape family of a body, for drawing.
+/// The shape family of a body, for drawing. Its own type beside [`crate::ShapeSpec`] because a
+/// state stream sends the family and the bounds, not the dimensions, and because terrain, which
+/// is no body shape, is drawn too; the server converts the core's shape kind into it in one
+/// place (`runtime/state.rs`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum BodyShape {

@@ -109,6 +109,15 @@ struct Item {
     owner: Option<ClientId>,
 }
 
+impl Item {
+    /// A body an `[[array]]` or `[[scatter]]` entry made: placed upright, mass from density, no
+    /// owner.
+    fn generated(entry: &str, class: ClassId, shape: &Shape, pos: DVec3, vel: DVec3) -> Item {
+        let (rot, mass, owner) = (DQuat::IDENTITY, None, None);
+        Item { entry: entry.to_string(), class, shape: shape.clone(), pos, vel, rot, mass, owner }
+    }
+}
+
 fn finite3(v: [f64; 3]) -> bool {
     v.iter().all(|x| x.is_finite())
 }
@@ -136,6 +145,20 @@ impl Builder {
             let known: Vec<&str> = classes.props.iter().map(|p| p.name.as_str()).collect();
             self.err(entry, format!("unknown class {name:?} (classes: {})", known.join(", ")))
         })
+    }
+
+    /// An entry's class and shape (`entry` names them in errors as `{entry}.class` and
+    /// `{entry}.shape`).
+    fn class_and_shape(
+        &self,
+        classes: &Classes,
+        class: &str,
+        shape: &ShapeSpec,
+        entry: &str,
+    ) -> Result<(ClassId, Shape), SceneError> {
+        let class = self.class(classes, class, &format!("{entry}.class"))?;
+        let shape = self.shape(shape, &format!("{entry}.shape"), classes.props[class.0 as usize].is_static)?;
+        Ok((class, shape))
     }
 
     /// The shape `s` describes (`entry` names it in errors); a mesh only for a static class.
@@ -334,9 +357,7 @@ impl Builder {
     fn bodies(&self, def: &SceneFile, classes: &Classes, items: &mut Vec<Item>) -> Result<(), SceneError> {
         for (k, b) in def.bodies.iter().enumerate() {
             let entry = format!("body[{k}]");
-            let class = self.class(classes, &b.class, &format!("{entry}.class"))?;
-            let is_static = classes.props[class.0 as usize].is_static;
-            let shape = self.shape(&b.shape, &format!("{entry}.shape"), is_static)?;
+            let (class, shape) = self.class_and_shape(classes, &b.class, &b.shape, &entry)?;
             for (field, v) in [("position", b.position), ("velocity", b.velocity), ("rotation_deg", b.rotation_deg)] {
                 if !finite3(v) {
                     return Err(self.err(format!("{entry}.{field}"), "must be finite"));
@@ -365,8 +386,7 @@ impl Builder {
     ) -> Result<(), SceneError> {
         for (k, a) in def.arrays.iter().enumerate() {
             let entry = format!("array[{k}]");
-            let class = self.class(classes, &a.class, &format!("{entry}.class"))?;
-            let shape = self.shape(&a.shape, &format!("{entry}.shape"), classes.props[class.0 as usize].is_static)?;
+            let (class, shape) = self.class_and_shape(classes, &a.class, &a.shape, &entry)?;
             if !finite3(a.origin) || !finite3(a.spacing_m) || !finite3(a.velocity) {
                 return Err(self.err(entry, "origin, spacing_m and velocity must be finite"));
             }
@@ -378,17 +398,7 @@ impl Builder {
                     for x in 0..a.count[0] {
                         let p = DVec3::from_array(a.origin)
                             + DVec3::new(x as f64, y as f64, z as f64) * DVec3::from_array(a.spacing_m);
-                        let vel = DVec3::from_array(a.velocity);
-                        items.push(Item {
-                            entry: entry.clone(),
-                            class,
-                            shape: shape.clone(),
-                            pos: p,
-                            vel,
-                            rot: DQuat::IDENTITY,
-                            mass: None,
-                            owner: None,
-                        });
+                        items.push(Item::generated(&entry, class, &shape, p, DVec3::from_array(a.velocity)));
                     }
                 }
             }
@@ -406,21 +416,11 @@ impl Builder {
     ) -> Result<(), SceneError> {
         for (k, s) in def.scatters.iter().enumerate() {
             let entry = format!("scatter[{k}]");
-            let class = self.class(classes, &s.class, &format!("{entry}.class"))?;
-            let shape = self.shape(&s.shape, &format!("{entry}.shape"), classes.props[class.0 as usize].is_static)?;
+            let (class, shape) = self.class_and_shape(classes, &s.class, &s.shape, &entry)?;
             self.room(items.len(), u64::from(s.count), &entry, w.max_bodies)?;
             let placed = random::scatter(s, &shape).map_err(|d| self.err(&entry, d))?;
             for (p, v) in placed {
-                items.push(Item {
-                    entry: entry.clone(),
-                    class,
-                    shape: shape.clone(),
-                    pos: p,
-                    vel: v,
-                    rot: DQuat::IDENTITY,
-                    mass: None,
-                    owner: None,
-                });
+                items.push(Item::generated(&entry, class, &shape, p, v));
             }
         }
         Ok(())
