@@ -342,9 +342,17 @@ $("scrub").addEventListener("input", async () => {
   if (back === 0) { past = null; $("scrub-label").textContent = `tick ${frozen.tick}`; return; }
   // The server keeps only its rollback window, which moves on while the page is paused: count
   // back from the newest tick the stream has told of.
-  const tick = live.tick - back;
+  let tick = live.tick - back;
   const seq = ++scrubSeq;
-  const answer = await fetch(`/api/state?tick=${tick}`).then((r) => r.json()).catch((e) => ({ type: "query_error", detail: String(e) }));
+  const query = (t) => fetch(`/api/state?tick=${t}`).then((r) => r.json()).catch((e) => ({ type: "query_error", detail: String(e) }));
+  let answer = await query(tick);
+  // The stream lags the server (a frame every 50 ms, more under load): when that tick has left
+  // the window already, count back once more from the present the server's answer names.
+  const gone = answer.type !== "snapshot" && /oldest (\d+), now (\d+)/.exec(answer.detail || "");
+  if (gone && tick < Number(gone[1])) {
+    tick = Number(gone[2]) - back;
+    answer = await query(tick);
+  }
   if (seq !== scrubSeq || !frozen) return;
   if (answer.type === "snapshot") {
     const bodies = new Map();
