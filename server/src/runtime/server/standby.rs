@@ -9,7 +9,9 @@
 //! every acked input, publishes the difference from what clients hold as a correction (a takeover
 //! looks like one more rollback), declares the world's subscriber, queryables and token, and
 //! welcomes every present client again so it re-anchors its clock. Ticks the primary confirmed
-//! are never published again; ticks it did not confirm are confirmed by the standby, once.
+//! are never published again; ticks it did not confirm are confirmed by the standby, once. The
+//! primary puts a tick's log entry before its confirmed events, so a primary killed between the
+//! two leaves a tick logged but not confirmed: the standby keeps the two marks apart.
 
 use super::{Control, RuntimeError, TickLoop};
 use crate::rollback::log::{self, ConfirmedTick};
@@ -36,8 +38,29 @@ const EARLY_LOG: usize = 4_096;
 /// The largest reply a checkpoint may be (a world of `max_bodies` bodies fits).
 const MAX_CHECKPOINT_BYTES: usize = 256 << 20;
 
+/// The newest ticks an earlier primary published on the log and on the confirmed stream: a
+/// standby that took over publishes neither again for a tick up to its mark.
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct Published {
+    log: Option<Tick>,
+    confirmed: Option<Tick>,
+}
+
+impl Published {
+    /// Whether the earlier primary put `t` on the log.
+    pub(super) fn logged(&self, t: Tick) -> bool {
+        self.log.is_some_and(|c| t <= c)
+    }
+
+    /// Whether the earlier primary published `t`'s confirmed events.
+    pub(super) fn confirmed(&self, t: Tick) -> bool {
+        self.confirmed.is_some_and(|c| t <= c)
+    }
+}
+
 enum Followed {
     Log(LogTick),
+    Confirmed(Tick),
     Admitted(Admitted),
     Published(ServerMessage),
     PrimaryUp,
@@ -52,12 +75,13 @@ pub(super) struct Follower {
 }
 
 impl Follower {
-    /// Subscribes to the world's log, admitted inputs, published events and server token.
+    /// Subscribes to the world's log, admitted inputs, published and confirmed events and server
+    /// token.
     pub(super) fn start(zs: &zenoh::Session, world: &WorldId) -> Result<Follower, RuntimeError> {
         let (tx, rx) = sync_channel::<Followed>(FOLLOW_QUEUE);
         let lost = Arc::new(AtomicU64::new(0));
         let mut subs = Vec::new();
-        for pattern in [keys::LOG, keys::LOG_ADMITTED, keys::EVENTS, keys::CORRECTIONS] {
+        for pattern in [keys::LOG, keys::LOG_ADMITTED, keys::EVENTS, keys::CORRECTIONS, keys::CONFIRMED] {
             let (tx, lost) = (tx.clone(), lost.clone());
             let sub = zs
                 .declare_subscriber(pattern.key(world, None))
@@ -67,6 +91,7 @@ impl Follower {
                     let msg = match decode::<ServerMessage>(&bytes, enc, MAX_CHECKPOINT_BYTES) {
                         Ok(ServerMessage::Log(l)) => Followed::Log(l),
                         Ok(ServerMessage::Admitted(a)) => Followed::Admitted(a),
+                        Ok(ServerMessage::Confirmed(b)) => Followed::Confirmed(b.tick),
                         Ok(m @ (ServerMessage::Events(_) | ServerMessage::Corrections(_))) => Followed::Published(m),
                         _ => return,
                     };
@@ -107,12 +132,19 @@ struct Unconfirmed {
     published: BTreeMap<u32, (BTreeMap<EventKey, CollisionEvent>, u32)>,
     /// The newest tick the primary said it was at.
     newest: Option<Tick>,
+    /// The newest tick the primary confirmed the events of.
+    confirmed: Option<Tick>,
 }
 
 impl Unconfirmed {
-    /// Forgets everything up to the confirmed tick `t`: the log has it now.
-    fn confirmed(&mut self, t: Tick) {
+    /// Forgets the inputs up to the logged tick `t`: the log has them now.
+    fn logged(&mut self, t: Tick) {
         self.admitted = self.admitted.split_off(&(t.0 + 1));
+    }
+
+    /// Forgets the events up to the confirmed tick `t`: clients have them as final.
+    fn confirmed(&mut self, t: Tick) {
+        self.confirmed = self.confirmed.max(Some(t));
         self.published = self.published.split_off(&(t.0 + 1));
     }
 
@@ -164,6 +196,7 @@ impl TickLoop {
         let mut pending = Unconfirmed::default();
         let mut primary_up = false;
         let mut asked: Option<Instant> = None;
+        let mut refused: Option<String> = None;
         let mut lost_seen = 0;
         let mut last_status = Instant::now();
         let (verbose, world) = (self.opts.verbose, self.world.clone());
@@ -199,7 +232,13 @@ impl TickLoop {
                             }
                         }
                     }
-                    Err(e) => say(format!("no checkpoint yet: {e}")),
+                    // Said once per reason, verbose or not: a standby that cannot follow (a
+                    // primary with other settings) must not be silent about it.
+                    Err(e) if refused.as_ref() != Some(&e) => {
+                        eprintln!("impact-server: standby {}: no checkpoint restored yet: {e}", self.world);
+                        refused = Some(e);
+                    }
+                    Err(_) => {}
                 }
             }
             if self.opts.verbose && synced && last_status.elapsed() >= Duration::from_secs(1) {
@@ -214,8 +253,9 @@ impl TickLoop {
                 );
             }
             match f.rx.recv_timeout(Duration::from_millis(20)) {
+                Ok(Followed::Confirmed(t)) => pending.confirmed(t),
                 Ok(Followed::Log(l)) => {
-                    pending.confirmed(l.tick);
+                    pending.logged(l.tick);
                     if synced {
                         self.follow_tick(l, avatar, &mut synced);
                     } else {
@@ -339,12 +379,21 @@ impl TickLoop {
     /// publish them as this server's.
     fn take_over(&mut self, mut pending: Unconfirmed) {
         let from = self.session.now();
-        // Followed without a gap: every tick before the present one is confirmed.
-        self.confirmed_upto = from.0.checked_sub(1).map(Tick);
-        // The primary had simulated up to its newest tick: the last confirmed one plus the window,
+        // Followed without a gap: every tick before the present one is logged. The confirmed
+        // events of the last of them may not be out (the primary went between the two puts).
+        let logged = from.0.checked_sub(1).map(Tick);
+        self.earlier = Published { log: logged, confirmed: pending.confirmed.min(logged) };
+        // Logged but not confirmed: this session confirms them when they leave its window, at
+        // the revision clients hold.
+        let mut corrections = Vec::new();
+        for (k, (events, revision)) in pending.published.range(..from.0) {
+            corrections.extend(self.session.adopt(Tick(*k), events.values().cloned().collect(), *revision));
+        }
+        pending.published = pending.published.split_off(&from.0);
+        // The primary had simulated up to its newest tick: the last logged one plus the window,
         // or the newest it said anything about.
         let window = self.session.config().window_ticks;
-        let by_window = self.confirmed_upto.map(|c| Tick(c.0 + window));
+        let by_window = logged.map(|c| Tick(c.0 + window));
         let to = by_window.max(pending.newest).unwrap_or(from).max(from);
         for k in from.0..=to.0 {
             let (system, inputs) = pending.admitted.remove(&k).unwrap_or_default();
@@ -360,6 +409,7 @@ impl TickLoop {
                 adv.events.clear();
                 adv.corrections = self.session.adopt(Tick(k), events.into_values().collect(), revision);
             }
+            adv.corrections.splice(0..0, std::mem::take(&mut corrections));
             self.publish(adv);
         }
         // Inputs acked for ticks still ahead.
@@ -372,10 +422,11 @@ impl TickLoop {
         }
         self.summary.promoted_at = Some(self.session.now());
         eprintln!(
-            "impact-server: world {}: the primary is gone; took over at tick {} (confirmed up to {}, {} ticks re-simulated, {} acked inputs re-applied)",
+            "impact-server: world {}: the primary is gone; took over at tick {} (logged up to {}, confirmed up to {}, {} ticks re-simulated, {} acked inputs re-applied)",
             self.world,
             self.session.now().0,
-            self.confirmed_upto.map_or(-1, |t| i64::from(t.0)),
+            self.earlier.log.map_or(-1, |t| i64::from(t.0)),
+            self.earlier.confirmed.map_or(-1, |t| i64::from(t.0)),
             self.summary.caught_up_ticks,
             self.summary.reapplied_inputs
         );

@@ -2,6 +2,7 @@
 //! queues, advances the rollback session, and publishes acks, events, corrections, the input log,
 //! stats and the state capture; it also answers queries between ticks.
 
+use super::standby::Published;
 use super::{
     declare_primary, reject, send, ClientState, Control, Ingress, Primary, ServerOptions, Shared, Summary, Wiring,
 };
@@ -57,9 +58,9 @@ pub(super) struct TickLoop {
     pub(super) admitted: Admitted,
     /// This tick's acks, held until `admitted` is out.
     pub(super) acks: Vec<(String, ServerMessage, Encoding)>,
-    /// The last tick an earlier primary confirmed: a standby that took over never publishes a
-    /// tick up to it as confirmed again.
-    pub(super) confirmed_upto: Option<Tick>,
+    /// Marks a standby that took over keeps of what its primary published, so it never publishes
+    /// a tick twice (see [`Published`]).
+    pub(super) earlier: Published,
 }
 
 impl TickLoop {
@@ -103,7 +104,7 @@ impl TickLoop {
             record: None,
             admitted: Admitted { tick: Tick(0), system: Vec::new(), inputs: Vec::new() },
             acks: Vec::new(),
-            confirmed_upto: None,
+            earlier: Published::default(),
         }
     }
 
@@ -224,10 +225,13 @@ impl TickLoop {
         self.summary.run_s = started.elapsed().as_secs_f64();
         // Shutdown: everything still in the window is final now.
         for (batch, log) in self.session.finish() {
-            if self.confirmed_upto.is_some_and(|c| batch.tick <= c) {
+            if self.earlier.confirmed(batch.tick) {
                 continue;
             }
             self.put(keys::CONFIRMED.key(&self.world, None), &ServerMessage::Confirmed(batch), self.opts.encoding);
+            if self.earlier.logged(log.tick) {
+                continue;
+            }
             let entry = log.to_wire();
             if let Some(r) = self.record.as_mut() {
                 r.write(&entry);
@@ -494,17 +498,16 @@ impl TickLoop {
             });
             self.put(keys::CORRECTIONS.key(&self.world, None), &ServerMessage::Corrections(c.clone()), enc);
         }
-        // A standby that took over re-simulates ticks its primary already confirmed: they were
-        // published then, and are not again.
-        let fresh = |t: Tick| self.confirmed_upto.is_none_or(|c| t > c);
-        if let Some(log) = adv.log.take().filter(|l| fresh(l.tick)) {
+        // A standby that took over re-simulates ticks its primary already logged or confirmed:
+        // they were published then, and are not again.
+        if let Some(log) = adv.log.take().filter(|l| !self.earlier.logged(l.tick)) {
             let entry = log.to_wire();
             if let Some(r) = self.record.as_mut() {
                 r.write(&entry);
             }
             self.put_log(keys::LOG.key(&self.world, None), &ServerMessage::Log(entry));
         }
-        if let Some(c) = adv.confirmed.as_ref().filter(|c| fresh(c.tick)) {
+        if let Some(c) = adv.confirmed.as_ref().filter(|c| !self.earlier.confirmed(c.tick)) {
             self.summary.confirmed_events += c.events.len() as u64;
             if !c.events.is_empty() {
                 let cc = c.clone();
