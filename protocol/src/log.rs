@@ -163,4 +163,10 @@ pub struct Checkpoint {
     pub clients: Vec<CheckpointClient>,
     /// State hash of this world: a restore is checked against it.
     pub state_hash: u64,
+    /// The settings the world runs with (tick rate, gravity, the resolved `[world]` values and
+    /// the class rules), as `(name, value)` text: a server restoring the checkpoint refuses one
+    /// whose settings differ from its own, naming them (a standby of a build with other
+    /// defaults). Empty from a primary that predates it: not checked.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub settings: Vec<(String, String)>,
 }

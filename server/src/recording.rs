@@ -4,9 +4,16 @@
 //! [`LogTick`] per confirmed tick, oldest first. `impact-server --offline --replay FILE` steps the
 //! scene through the same inputs and server actions and checks the state hash after every tick:
 //! a recorded match is a bug report anyone with the scene file can reproduce, bit for bit.
+//!
+//! The header carries every `[world]` value the world ran with (format 2), so a build whose
+//! defaults differ replays what was run. A recording of format 1 (before the defaults followed
+//! the scene) replays with the fixed defaults of its time, unless its world has friction: those
+//! builds' impacts had none, so it cannot be reproduced, and the replay refuses it saying so.
 
 use crate::rollback::log::ConfirmedTick;
 use crate::rollback::{RollbackConfig, Session};
+use impact_core::scene::settings::fixed_defaults;
+use impact_core::scene::settings::WorldKeys;
 use impact_core::scene::Scene;
 use impact_core::sim::world::window_ticks;
 use impact_core::sim::Plan;
@@ -21,7 +28,7 @@ use std::sync::Arc;
 pub struct RecordingHeader {
     /// Always `"impact-recording"`.
     pub format: String,
-    /// Format version (1).
+    /// Format version: 2 (1 before the header carried `keys`).
     pub version: u32,
     /// The world's name.
     pub world: String,
@@ -32,9 +39,15 @@ pub struct RecordingHeader {
     /// State hash of the scene's world at tick 0: a replay against another scene file is refused
     /// before it starts.
     pub initial_hash: u64,
+    /// Every `[world]` value the world ran with (format 2 on).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub keys: Option<WorldKeys>,
 }
 
 const FORMAT: &str = "impact-recording";
+
+/// The newest format this build writes and reads.
+const VERSION: u32 = 2;
 
 /// Writes a recording as the server confirms ticks.
 #[derive(Debug)]
@@ -53,11 +66,12 @@ impl Recorder {
         let cfg = &scene.world.config;
         let header = RecordingHeader {
             format: FORMAT.into(),
-            version: 1,
+            version: VERSION,
             world: scene.name.to_string(),
             tick_hz: cfg.tick_hz,
             window_ticks: cfg.window_ticks,
             initial_hash: scene.world.state_hash(),
+            keys: Some(scene.keys.clone()),
         };
         r.line(&header);
         r.error.take().map_or(Ok(r), Err)
@@ -137,8 +151,46 @@ impl std::fmt::Display for ReplayReport {
     }
 }
 
+/// Reads a recording's header line.
+pub fn header(path: &Path) -> Result<RecordingHeader, String> {
+    let file = path.display().to_string();
+    let f = std::fs::File::open(path).map_err(|e| format!("{file}: {e}"))?;
+    let first = std::io::BufReader::new(f).lines().next().ok_or_else(|| format!("{file}: empty, not a recording"))?;
+    let first = first.map_err(|e| format!("{file}:1: {e}"))?;
+    let header: RecordingHeader = serde_json::from_str(&first).map_err(|e| format!("{file}:1: {e}"))?;
+    if header.format != FORMAT || !(1..=VERSION).contains(&header.version) {
+        return Err(format!(
+            "{file}: not an impact recording of version 1 to {VERSION} ({} {})",
+            header.format, header.version
+        ));
+    }
+    Ok(header)
+}
+
+/// The scene file at `scene_path` as the recording at `path` ran it: with the `[world]` values
+/// its header carries, or for a format-1 recording the fixed defaults of its time (refused with
+/// the reason when that world cannot be reproduced by this build).
+pub fn scene_for(scene_path: &Path, path: &Path) -> Result<Scene, String> {
+    let header = header(path)?;
+    let scene = match &header.keys {
+        Some(keys) => Scene::load_with(scene_path, |w| keys.write_into(w)),
+        None => Scene::load_with(scene_path, fixed_defaults),
+    }
+    .map_err(|e| e.to_string())?;
+    if header.keys.is_none() && scene.keys.friction > 0.0 {
+        return Err(format!(
+            "{} was recorded by a build before friction acted at impacts (recording format 1) and its world has \
+             friction {}: this build cannot reproduce it; replay it with the build that made it (CHANGELOG.md)",
+            path.display(),
+            scene.keys.friction
+        ));
+    }
+    Ok(scene)
+}
+
 /// Replays the recording at `path` on `scene` (the core's parallel stages on `pool`), calling
-/// `progress(ticks_done)` after each tick.
+/// `progress(ticks_done)` after each tick. `scene` must run with the recording's `[world]`
+/// values: load it with [`scene_for`].
 pub fn replay(
     scene: &Scene,
     path: &Path,
@@ -146,15 +198,20 @@ pub fn replay(
     mut progress: impl FnMut(u64),
 ) -> Result<ReplayReport, String> {
     let file = path.display().to_string();
+    let header = header(path)?;
+    if let Some(keys) = &header.keys {
+        let differ = keys.differences(&scene.keys);
+        if !differ.is_empty() {
+            return Err(format!(
+                "{file} ran with other [world] values than this scene resolves to (recorded vs here: {}): load the scene with the recording's values",
+                differ.join(", ")
+            ));
+        }
+    }
     let f = std::fs::File::open(path).map_err(|e| format!("{file}: {e}"))?;
     let mut lines = std::io::BufReader::new(f).lines().enumerate();
     let bad = |line: usize, e: &dyn std::fmt::Display| format!("{file}:{}: {e}", line + 1);
-    let (k, first) = lines.next().ok_or_else(|| format!("{file}: empty, not a recording"))?;
-    let first = first.map_err(|e| bad(k, &e))?;
-    let header: RecordingHeader = serde_json::from_str(&first).map_err(|e| bad(k, &e))?;
-    if header.format != FORMAT || header.version != 1 {
-        return Err(format!("{file}: not an impact recording of version 1 ({} {})", header.format, header.version));
-    }
+    lines.next();
     let mut world = scene.world.clone();
     {
         let cfg = Arc::make_mut(&mut world.config);

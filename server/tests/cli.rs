@@ -27,36 +27,46 @@ fn explain_says_where_every_world_value_came_from() {
     // standing.toml sets friction and gravity; it leaves the slop and the sleep keys out.
     assert!(line(&text, "friction").ends_with("scene"), "{text}");
     assert!(line(&text, "gravity").contains("[0.0, -9.81, 0.0]"), "{text}");
-    assert!(line(&text, "contact_slop_m").contains("0.0001") && line(&text, "contact_slop_m").contains("default: "));
+    let slop = line(&text, "contact_slop_m");
+    assert!(slop.contains("0.003") && slop.contains("default: 1.25 ticks of free fall"), "{text}");
     assert!(line(&text, "sleep_after_s").contains("default: "), "{text}");
     let settings = text.lines().filter(|l| !l.trim_start().starts_with("warning[")).count();
     assert_eq!(settings, 16, "a heading and the 15 [world] keys:\n{text}");
     let flagged = explain(&["--tick-hz", "128"]);
     assert!(line(&flagged, "tick_hz").contains("128") && line(&flagged, "tick_hz").contains("--tick-hz"), "{flagged}");
+    // The slop follows the flag's tick rate: 1.25 * 9.81 / 128^2 = 0.75 mm.
+    assert!(line(&flagged, "contact_slop_m").contains("0.00075"), "{flagged}");
 }
 
-/// A pile written with gravity and shapes but no tuning keys loads, and the server says at once
-/// why it will not rest and what would work, on stderr at load and in `--explain`.
+/// A pile written with gravity and shapes but no tuning keys loads with defaults that let it
+/// rest, and no warning; with keys that keep it from resting, the server says at once why and
+/// what would work, on stderr at load and in `--explain`.
 #[test]
 fn a_scene_that_cannot_rest_is_told_so_at_load() {
-    let path = std::env::temp_dir().join(format!("impact-cli-pile-{}.toml", std::process::id()));
-    std::fs::write(
-        &path,
-        "[world]\nname = \"mypile\"\ngravity = [0.0, -9.81, 0.0]\n[[class]]\nname = \"ball\"\n\
-         [[class]]\nname = \"floor\"\nstatic = true\n\
-         [[body]]\nclass = \"floor\"\nshape = { type = \"cuboid\", half_extents_m = [10.0, 0.5, 10.0] }\nposition = [0.0, -0.5, 0.0]\n\
-         [[scatter]]\nclass = \"ball\"\nshape = { type = \"sphere\", radius_m = 0.25 }\ncount = 50\nseed = 1\nmin = [-3.0, 1.0, -3.0]\nmax = [3.0, 8.0, 3.0]\n",
-    )
-    .unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_impact-server"))
-        .arg("--scene")
-        .arg(&path)
-        .arg("--explain")
-        .output()
-        .expect("impact-server runs");
-    let _ = std::fs::remove_file(&path);
-    let (stdout, stderr) = (String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
-    assert!(out.status.success(), "{stderr}");
+    let pile = |keys: &str| {
+        let path = std::env::temp_dir().join(format!("impact-cli-pile-{}-{}.toml", std::process::id(), keys.len()));
+        std::fs::write(
+            &path,
+            format!("[world]\nname = \"mypile\"\ngravity = [0.0, -9.81, 0.0]\n{keys}[[class]]\nname = \"ball\"\n\
+             [[class]]\nname = \"floor\"\nstatic = true\n\
+             [[body]]\nclass = \"floor\"\nshape = {{ type = \"cuboid\", half_extents_m = [10.0, 0.5, 10.0] }}\nposition = [0.0, -0.5, 0.0]\n\
+             [[scatter]]\nclass = \"ball\"\nshape = {{ type = \"sphere\", radius_m = 0.25 }}\ncount = 50\nseed = 1\nmin = [-3.0, 1.0, -3.0]\nmax = [3.0, 8.0, 3.0]\n"),
+        )
+        .unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_impact-server"))
+            .arg("--scene")
+            .arg(&path)
+            .arg("--explain")
+            .output()
+            .expect("impact-server runs");
+        let _ = std::fs::remove_file(&path);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        (String::from_utf8_lossy(&out.stdout).into_owned(), String::from_utf8_lossy(&out.stderr).into_owned())
+    };
+    let (stdout, stderr) = pile("");
+    assert!(!stderr.contains("warning[") && !stdout.contains("warning["), "{stdout}{stderr}");
+    assert!(line(&stdout, "restitution").contains("0.0") && line(&stdout, "friction").contains("0.5"), "{stdout}");
+    let (stdout, stderr) = pile("restitution = 1.0\ncontact_slop_m = 0.0001\n");
     for name in ["slop_below_free_fall", "elastic_under_gravity"] {
         assert!(stderr.contains(&format!("warning[{name}]")), "{name} at load:\n{stderr}");
         assert!(stdout.contains(&format!("warning[{name}]")), "{name} in --explain:\n{stdout}");

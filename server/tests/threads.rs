@@ -12,7 +12,8 @@ use impact_protocol::{ClientId, CollisionEvent};
 use impact_server::offline::{self, InputScript};
 use impact_server::rollback::{RollbackConfig, Session};
 
-const SCENES: [&str; 8] = ["arena", "breakout", "bullets", "corridor", "pile", "standing", "terrain", "yard"];
+const SCENES: [&str; 11] =
+    ["arena", "breakout", "bullets", "corridor", "hillside", "pile", "ramp", "stack", "standing", "terrain", "yard"];
 
 /// The pools compared: one thread (no pool), two and four threads cut finely.
 fn pools() -> Vec<(String, Pool)> {

@@ -2,7 +2,7 @@
 //! so a typo is an error naming the key rather than a silently ignored setting.
 
 pub use impact_protocol::ShapeSpec;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 /// A whole scene file.
 #[derive(Clone, Debug, Deserialize)]
@@ -45,7 +45,7 @@ fn default_density() -> f64 {
 
 /// `[world]`, as written: a key left out is `None`, and [`super::settings`] resolves it (and
 /// says where each value came from, for `impact-server --explain`).
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct WorldDef {
     /// World name (the `{world}` key segment): `[a-z0-9_-]`, 1 to 64 characters.
@@ -83,6 +83,13 @@ pub struct WorldDef {
     pub sleep_after_s: Option<f64>,
 }
 
+impl WorldDef {
+    /// A `[world]` named `name` that gives no other key.
+    pub fn named(name: &str) -> WorldDef {
+        WorldDef { name: name.to_string(), ..WorldDef::default() }
+    }
+}
+
 /// `[[class]]`.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -110,7 +117,7 @@ pub struct ClassDef {
 }
 
 /// A response kind.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ResponseKind {
     /// Not tested at all.
@@ -224,6 +231,10 @@ pub struct ArrayDef {
     /// Velocity of every body, m/s.
     #[serde(default)]
     pub velocity: [f64; 3],
+    /// Orientation of every body, as `[[body]]`'s: rotations about x, y, z in degrees, applied
+    /// in that order (boxes laid on a ramp).
+    #[serde(default)]
+    pub rotation_deg: [f64; 3],
 }
 
 /// `[terrain]`: a height field, given as rows or generated.

@@ -40,6 +40,9 @@ pub struct Scene {
     pub world: World,
     /// Avatar rules, if clients get avatars.
     pub avatar: Option<AvatarRule>,
+    /// Every `[world]` key as resolved: what the world runs with (recordings and checkpoints
+    /// carry it).
+    pub keys: WorldKeys,
     /// Every `[world]` key as resolved, and where each value came from (`--explain`).
     pub settings: Vec<settings::Setting>,
     /// What the keys contradict: a world that loads but cannot come to rest.
@@ -62,18 +65,30 @@ pub struct AvatarRule {
 impl Scene {
     /// Loads a scene file.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
+        Scene::load_with(path, |_| {})
+    }
+
+    /// Loads a scene file with its `[world]` keys adjusted before they are resolved: a command
+    /// line's `--tick-hz`, or the values a recording ran with. Defaults that follow a key follow
+    /// the adjusted one.
+    pub fn load_with(path: &Path, adjust: impl FnOnce(&mut WorldDef)) -> Result<Scene, SceneError> {
         let file = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|e| SceneError {
             file: file.clone(),
             entry: "file".into(),
             detail: e.to_string(),
         })?;
-        Scene::parse(&text, &file)
+        Scene::parse_with(&text, &file, adjust)
     }
 
     /// Parses scene text; `file` names it in errors.
     pub fn parse(text: &str, file: &str) -> Result<Scene, SceneError> {
-        let def: SceneFile = toml::from_str(text).map_err(|e| {
+        Scene::parse_with(text, file, |_| {})
+    }
+
+    /// Parses scene text with its `[world]` keys adjusted first (see [`Scene::load_with`]).
+    pub fn parse_with(text: &str, file: &str, adjust: impl FnOnce(&mut WorldDef)) -> Result<Scene, SceneError> {
+        let mut def: SceneFile = toml::from_str(text).map_err(|e| {
             let entry = e
                 .span()
                 .map(|s| {
@@ -83,6 +98,7 @@ impl Scene {
                 .unwrap_or_else(|| "document".into());
             SceneError { file: file.into(), entry, detail: e.message().to_string() }
         })?;
+        adjust(&mut def.world);
         Builder { file: file.into() }.build(&def)
     }
 
@@ -112,14 +128,20 @@ struct Item {
 impl Item {
     /// A body an `[[array]]` or `[[scatter]]` entry made: placed upright, mass from density, no
     /// owner.
-    fn generated(entry: &str, class: ClassId, shape: &Shape, pos: DVec3, vel: DVec3) -> Item {
-        let (rot, mass, owner) = (DQuat::IDENTITY, None, None);
+    fn generated(entry: &str, class: ClassId, shape: &Shape, pos: DVec3, vel: DVec3, rot: DQuat) -> Item {
+        let (mass, owner) = (None, None);
         Item { entry: entry.to_string(), class, shape: shape.clone(), pos, vel, rot, mass, owner }
     }
 }
 
 fn finite3(v: [f64; 3]) -> bool {
     v.iter().all(|x| x.is_finite())
+}
+
+/// An orientation written as rotations about x, y, z in degrees, applied in that order.
+fn rotation(deg: [f64; 3]) -> DQuat {
+    let r = deg.map(f64::to_radians);
+    DQuat::from_rotation_z(r[2]) * DQuat::from_rotation_y(r[1]) * DQuat::from_rotation_x(r[0])
 }
 
 impl Builder {
@@ -176,7 +198,7 @@ impl Builder {
     /// responses, the terrain, the bodies (placed in file order, ids ascending), the spawn rules.
     fn build(&self, def: &SceneFile) -> Result<Scene, SceneError> {
         let name = WorldId::new(def.world.name.clone()).map_err(|e| self.err("world.name", e.to_string()))?;
-        let (keys, settings) = settings::resolve(&def.world);
+        let (keys, settings) = settings::resolve(&def.world, settings::SceneFacts::of(def));
         let w = &keys;
         let bisect = self.world_keys(w)?;
         let (mut classes, immovable) = self.classes(def, w)?;
@@ -207,7 +229,7 @@ impl Builder {
             config: Arc::new(config),
         };
         let warnings = warnings::check(&keys, &world);
-        Ok(Scene { name, world, avatar, settings, warnings })
+        Ok(Scene { name, world, avatar, keys, settings, warnings })
     }
 
     /// Checks `[world]`'s keys; the bisection settings they give.
@@ -368,8 +390,7 @@ impl Builder {
                     return Err(self.err(format!("{entry}.mass_kg"), format!("{m} must be positive and finite")));
                 }
             }
-            let r = b.rotation_deg.map(f64::to_radians);
-            let rot = DQuat::from_rotation_z(r[2]) * DQuat::from_rotation_y(r[1]) * DQuat::from_rotation_x(r[0]);
+            let rot = rotation(b.rotation_deg);
             let (pos, vel) = (DVec3::from_array(b.position), DVec3::from_array(b.velocity));
             items.push(Item { entry, class, shape, pos, vel, rot, mass: b.mass_kg, owner: b.owner.map(ClientId) });
         }
@@ -387,9 +408,10 @@ impl Builder {
         for (k, a) in def.arrays.iter().enumerate() {
             let entry = format!("array[{k}]");
             let (class, shape) = self.class_and_shape(classes, &a.class, &a.shape, &entry)?;
-            if !finite3(a.origin) || !finite3(a.spacing_m) || !finite3(a.velocity) {
-                return Err(self.err(entry, "origin, spacing_m and velocity must be finite"));
+            if !finite3(a.origin) || !finite3(a.spacing_m) || !finite3(a.velocity) || !finite3(a.rotation_deg) {
+                return Err(self.err(entry, "origin, spacing_m, velocity and rotation_deg must be finite"));
             }
+            let rot = rotation(a.rotation_deg);
             // Counted before anything is built: 10 x 888,888 x 2 bricks took 3.4 GB (fuzzing).
             let n = a.count.iter().fold(1u64, |acc, &c| acc.saturating_mul(u64::from(c)));
             self.room(items.len(), n, &entry, w.max_bodies)?;
@@ -398,7 +420,7 @@ impl Builder {
                     for x in 0..a.count[0] {
                         let p = DVec3::from_array(a.origin)
                             + DVec3::new(x as f64, y as f64, z as f64) * DVec3::from_array(a.spacing_m);
-                        items.push(Item::generated(&entry, class, &shape, p, DVec3::from_array(a.velocity)));
+                        items.push(Item::generated(&entry, class, &shape, p, DVec3::from_array(a.velocity), rot));
                     }
                 }
             }
@@ -420,7 +442,7 @@ impl Builder {
             self.room(items.len(), u64::from(s.count), &entry, w.max_bodies)?;
             let placed = random::scatter(s, &shape).map_err(|d| self.err(&entry, d))?;
             for (p, v) in placed {
-                items.push(Item::generated(&entry, class, &shape, p, v));
+                items.push(Item::generated(&entry, class, &shape, p, v, DQuat::IDENTITY));
             }
         }
         Ok(())

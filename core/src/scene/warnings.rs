@@ -4,6 +4,7 @@
 use super::format::ResponseKind;
 use super::settings::WorldKeys;
 use crate::geometry::Shape;
+use crate::narrow;
 use crate::sim::World;
 use glam::DVec3;
 use std::fmt;
@@ -95,8 +96,8 @@ pub fn check(keys: &WorldKeys, world: &World) -> Vec<SceneWarning> {
                 name: "friction_below_slope",
                 key: "world.friction",
                 detail: format!(
-                    "{} cannot hold a body on the steepest static slope ({deg:.1} degrees, which needs {needed:.2}): \
-                     bodies on it slide forever and never sleep; {} would work, or a steeper slope is a wall",
+                    "{} cannot hold a body on the steepest static slope a body is placed on ({deg:.1} degrees, which \
+                     needs {needed:.2}): the bodies on it slide off rather than rest; {} would work",
                     keys.friction,
                     round_up(needed * 1.1)
                 ),
@@ -106,21 +107,36 @@ pub fn check(keys: &WorldKeys, world: &World) -> Vec<SceneWarning> {
     out
 }
 
+/// How near a body must be placed to a slope to count as lying on it, m (beside the slop).
+const LIES_ON_M: f64 = 0.02;
+
 /// The steepest top face of a static box that is ground (tilted, but less than
-/// [`MAX_GROUND_SLOPE_DEG`]), in degrees from level; `down` is gravity's direction.
+/// [`MAX_GROUND_SLOPE_DEG`]) with a falling body placed on it (within [`LIES_ON_M`] and the
+/// slop of it at load), in degrees from level; `down` is gravity's direction. A ramp bodies
+/// arrive on and slide down is not warned about: only a body set down to rest there.
 fn steepest_ground(world: &World, down: DVec3) -> Option<f64> {
     let s = &world.statics;
+    let b = &world.bodies;
+    let margin = LIES_ON_M + world.config.contact_slop_m;
     let up = -down;
     let mut steepest: Option<f64> = None;
-    for (shape, rot) in s.shape.iter().zip(&s.rot) {
+    for k in 0..s.shape.len() {
+        let (shape, rot) = (&s.shape[k], s.rot[k]);
         if !matches!(shape, Shape::Cuboid { .. }) {
             continue;
         }
         // The face whose normal is nearest to up is the one a body rests on.
-        let cos = [DVec3::X, DVec3::Y, DVec3::Z].iter().map(|a| (*rot * *a).dot(up).abs()).fold(0.0, f64::max);
+        let cos = [DVec3::X, DVec3::Y, DVec3::Z].iter().map(|a| (rot * *a).dot(up).abs()).fold(0.0, f64::max);
         let deg = cos.clamp(-1.0, 1.0).acos().to_degrees();
-        if deg > 0.5 && deg < MAX_GROUND_SLOPE_DEG {
-            steepest = Some(steepest.map_or(deg, |d| d.max(deg)));
+        if deg <= 0.5 || deg >= MAX_GROUND_SLOPE_DEG || steepest.is_some_and(|d| d >= deg) {
+            continue;
+        }
+        let falls = |i: usize| b.inv_mass[i] > 0.0 && world.config.classes.props[b.class[i].0 as usize].gravity;
+        let lies_on = (0..b.len()).any(|i| {
+            falls(i) && narrow::contact(&b.shape[i], b.rot[i], shape, rot, s.pos[k] - b.pos[i], margin).is_some()
+        });
+        if lies_on {
+            steepest = Some(deg);
         }
     }
     steepest
@@ -139,32 +155,43 @@ mod tests {
         [[body]]\nclass = \"floor\"\nshape = { type = \"cuboid\", half_extents_m = [10.0, 0.5, 10.0] }\nposition = [0.0, -0.5, 0.0]\n\
         [[body]]\nclass = \"ball\"\nshape = { type = \"sphere\", radius_m = 0.5 }\nposition = [0.0, 2.0, 0.0]\n";
 
-    /// A pile written with no tuning keys is told why it will not rest; the same pile with the
-    /// keys that work is not; a world without gravity never is.
+    /// A pile written with no tuning keys gets defaults that let it rest, and no warning; keys
+    /// that keep it from resting are told so; a world without gravity never is.
     #[test]
     fn a_pile_that_cannot_rest_is_told_so() {
-        assert_eq!(names(PILE), ["slop_below_free_fall", "elastic_under_gravity"]);
-        let tuned = PILE.replace(
+        assert!(names(PILE).is_empty(), "{:?}", names(PILE));
+        let untuned = PILE.replace(
             "gravity = [0.0, -9.81, 0.0]",
-            "gravity = [0.0, -9.81, 0.0]\nrestitution = 0.0\ncontact_slop_m = 0.003",
+            "gravity = [0.0, -9.81, 0.0]\nrestitution = 1.0\ncontact_slop_m = 0.0001",
         );
-        assert!(names(&tuned).is_empty(), "{:?}", names(&tuned));
+        assert_eq!(names(&untuned), ["slop_below_free_fall", "elastic_under_gravity"]);
         assert!(names(&PILE.replace("gravity = [0.0, -9.81, 0.0]", "")).is_empty());
         let fast = PILE.replace("gravity = [0.0, -9.81, 0.0]", "gravity = [0.0, -9.81, 0.0]\nsleep_speed_mps = 0.5");
         assert!(names(&fast).contains(&"sleep_above_free_fall_speed"));
     }
 
-    /// A 40 degree ramp needs friction above tan 40 = 0.84 to hold a body; a wall is not a ramp.
+    /// A 40 degree ramp a box is set down on needs friction above tan 40 = 0.84 to hold it; a
+    /// wall is not a ramp, and a ramp nothing is placed on (bodies arrive and slide down it) is
+    /// not warned about.
     #[test]
     fn a_ramp_steeper_than_the_friction_holds_is_told_so() {
-        let ramp = |deg: f64, friction: f64| {
-            PILE.replace("gravity = [0.0, -9.81, 0.0]", &format!("gravity = [0.0, -9.81, 0.0]\nrestitution = 0.0\ncontact_slop_m = 0.003\nfriction = {friction}"))
+        let ramp = |deg: f64, friction: f64, placed: bool| {
+            let r = f64::to_radians(deg);
+            let lift = 0.2 + 0.25 + 0.005;
+            let on = [-r.sin() * lift, 2.0 + r.cos() * lift, 5.0];
+            let crate_on = format!(
+                "[[body]]\nclass = \"ball\"\nshape = {{ type = \"cuboid\", half_extents_m = [0.25, 0.25, 0.25] }}\nposition = [{}, {}, {}]\nrotation_deg = [0.0, 0.0, {deg}]\n",
+                on[0], on[1], on[2]
+            );
+            PILE.replace("gravity = [0.0, -9.81, 0.0]", &format!("gravity = [0.0, -9.81, 0.0]\nfriction = {friction}"))
                 + &format!("[[body]]\nclass = \"floor\"\nshape = {{ type = \"cuboid\", half_extents_m = [4.0, 0.2, 2.0] }}\nposition = [0.0, 2.0, 5.0]\nrotation_deg = [0.0, 0.0, {deg}]\n")
+                + if placed { crate_on.as_str() } else { "" }
         };
-        let warned = Scene::parse(&ramp(40.0, 0.5), "<t>").unwrap().warnings;
+        let warned = Scene::parse(&ramp(40.0, 0.5, true), "<t>").unwrap().warnings;
         assert_eq!(warned.len(), 1, "{warned:?}");
         assert!(warned[0].detail.contains("40.0 degrees") && warned[0].detail.contains("0.84"), "{}", warned[0]);
-        assert!(names(&ramp(40.0, 0.9)).is_empty());
-        assert!(names(&ramp(90.0, 0.5)).is_empty(), "a wall");
+        assert!(names(&ramp(40.0, 0.9, true)).is_empty());
+        assert!(names(&ramp(40.0, 0.5, false)).is_empty(), "nothing is set down on it");
+        assert!(names(&ramp(90.0, 0.5, true)).is_empty(), "a wall");
     }
 }

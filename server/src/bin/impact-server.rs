@@ -6,7 +6,6 @@ use anyhow::{bail, Context, Result};
 use clap::Parser;
 use impact_core::scene::settings::{Setting, Source};
 use impact_core::scene::Scene;
-use impact_core::sim::world::window_ticks;
 use impact_core::sim::{Plan, Pool};
 use impact_protocol::{Encoding, WorldId};
 use impact_server::rollback::{RollbackConfig, StalePolicy};
@@ -15,7 +14,6 @@ use impact_server::runtime::{self, ServerOptions};
 use impact_server::{offline, recording};
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::time::Instant;
 
 /// impact: an authoritative collision server for multiplayer games.
@@ -171,6 +169,8 @@ fn main() -> Result<()> {
     }
     let [(scene, path)] = <[_; 1]>::try_from(scenes).map_err(|_| anyhow::anyhow!("--offline runs one --scene"))?;
     if let Some(rec) = &args.replay {
+        // The world as the recording ran it: its [world] values, not this build's defaults.
+        let scene = recording::scene_for(&path, rec).map_err(anyhow::Error::msg)?;
         return replay(&scene, &path, rec, &pool);
     }
     let plan = if args.general { Plan::general(&scene.world) } else { Plan::for_world(&scene.world) };
@@ -236,31 +236,29 @@ fn main() -> Result<()> {
 
 /// Loads a scene and applies the command line's overrides (world name, tick rate, window).
 fn load_scene(path: &Path, args: &Args) -> Result<Scene> {
-    let mut scene = Scene::load(path).map_err(anyhow::Error::msg)?;
+    if let Some(hz) = args.tick_hz {
+        if !(1..=1000).contains(&hz) {
+            bail!("--tick-hz {hz} must be in 1..=1000");
+        }
+    }
+    // The flags go in before the keys are resolved: a default that follows the tick rate follows
+    // the flag's, and the window (a duration) keeps its length when only the tick rate changes.
+    let mut scene = Scene::load_with(path, |w| {
+        w.tick_hz = args.tick_hz.or(w.tick_hz);
+        w.rollback_ms = args.rollback_ms.or(w.rollback_ms);
+    })
+    .map_err(anyhow::Error::msg)?;
     for w in &scene.warnings {
         eprintln!("{}: {w}", path.display());
     }
     if let Some(name) = &args.world {
         scene.name = WorldId::new(name.clone()).map_err(anyhow::Error::msg)?;
     }
-    if args.tick_hz.is_some() || args.rollback_ms.is_some() {
-        let cfg = Arc::make_mut(&mut scene.world.config);
-        // The window is a duration: keep it when only the tick rate changes.
-        let ms = args
-            .rollback_ms
-            .unwrap_or_else(|| (f64::from(cfg.window_ticks) * 1000.0 / f64::from(cfg.tick_hz)).round() as u32);
-        if let Some(hz) = args.tick_hz {
-            if !(1..=1000).contains(&hz) {
-                bail!("--tick-hz {hz} must be in 1..=1000");
-            }
-            cfg.tick_hz = hz;
-            cfg.dt = 1.0 / f64::from(hz);
-            overridden(&mut scene.settings, "tick_hz", hz.to_string(), "--tick-hz");
-        }
-        cfg.window_ticks = window_ticks(ms, cfg.tick_hz);
-        if let Some(ms) = args.rollback_ms {
-            overridden(&mut scene.settings, "rollback_ms", ms.to_string(), "--rollback-ms");
-        }
+    if let Some(hz) = args.tick_hz {
+        overridden(&mut scene.settings, "tick_hz", hz.to_string(), "--tick-hz");
+    }
+    if let Some(ms) = args.rollback_ms {
+        overridden(&mut scene.settings, "rollback_ms", ms.to_string(), "--rollback-ms");
     }
     Ok(scene)
 }
@@ -268,7 +266,7 @@ fn load_scene(path: &Path, args: &Args) -> Result<Scene> {
 /// Records that `flag` set `key` to `value`, for `--explain`.
 fn overridden(settings: &mut [Setting], key: &str, value: String, flag: &'static str) {
     if let Some(s) = settings.iter_mut().find(|s| s.key == key) {
-        *s = Setting { key: s.key, value, source: Source::Flag, why: flag };
+        *s = Setting { key: s.key, value, source: Source::Flag, why: flag.into() };
     }
 }
 

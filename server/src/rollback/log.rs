@@ -8,7 +8,7 @@
 use glam::{DQuat, DVec3};
 use impact_core::geometry::Shape;
 use impact_core::sim::input::RewoundRay;
-use impact_core::sim::world::{ClassId, NewBody, Touch};
+use impact_core::sim::world::{ClassId, NewBody, SimConfig, Touch};
 use impact_core::sim::{SystemAction, TickInput, World};
 use impact_protocol::log::LoggedRay;
 use impact_protocol::log::{CheckpointBody, CheckpointTouch};
@@ -157,11 +157,57 @@ pub fn checkpoint_world(w: &World) -> Result<Checkpoint, String> {
         touching,
         clients: Vec::new(),
         state_hash: w.state_hash(),
+        settings: settings(&w.config),
     })
+}
+
+/// What a checkpoint says of the settings `cfg` runs with: every value a step depends on that
+/// the scene's `[world]` resolves (and the class rules), as text.
+fn settings(cfg: &SimConfig) -> Vec<(String, String)> {
+    let mut out: Vec<(String, String)> = [
+        ("tick_hz", cfg.tick_hz.to_string()),
+        ("gravity", format!("{:?}", cfg.gravity.to_array())),
+        ("contact_slop_m", cfg.contact_slop_m.to_string()),
+        ("bounce_threshold_mps", cfg.bounce_threshold_mps.to_string()),
+        ("friction", cfg.friction.to_string()),
+        ("sleep_speed_mps", cfg.sleep_speed_mps.to_string()),
+        ("sleep_after_ticks", cfg.sleep_after_ticks.to_string()),
+        ("window_ticks", cfg.window_ticks.to_string()),
+        ("toi_tolerance", cfg.bisect.tolerance.to_string()),
+        ("max_resolutions_per_tick", cfg.max_resolutions_per_tick.to_string()),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v))
+    .collect();
+    let n = cfg.classes.props.len();
+    for a in 0..n {
+        for b in a..n {
+            let rule = cfg.classes.rule(ClassId(a as u16), ClassId(b as u16));
+            out.push((format!("rule {a}-{b}"), format!("{rule:?}")));
+        }
+    }
+    out
 }
 
 /// `scene` (its statics and settings) with the dynamic state of `c`, checked against its hash.
 pub fn restore_world(scene: &World, c: &Checkpoint) -> Result<World, String> {
+    if !c.settings.is_empty() {
+        let here = settings(&scene.config);
+        let differ: Vec<String> = c
+            .settings
+            .iter()
+            .zip(&here)
+            .filter(|(a, b)| a != b)
+            .map(|((k, theirs), (_, ours))| format!("{k}: {theirs} vs {ours}"))
+            .collect();
+        if !differ.is_empty() || c.settings.len() != here.len() {
+            return Err(format!(
+                "the checkpoint's world runs with other settings than this server's scene (theirs vs here: {}): \
+                 a build with other defaults? run the same build, or write the keys in the scene",
+                if differ.is_empty() { "another class table".to_string() } else { differ.join(", ") }
+            ));
+        }
+    }
     let mut w = World { tick: c.tick, next_entity: c.next_entity, touching: Vec::new(), ..scene.clone() };
     w.bodies = Default::default();
     let classes = w.config.classes.props.len();

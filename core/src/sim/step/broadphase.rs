@@ -38,9 +38,20 @@ impl Stepper {
         });
         self.wake_seeds.clear();
         if b.asleep.contains(&true) {
+            // A sleeper wakes when a body faster than the sleep speed may reach it. One slower
+            // than that counts as still: it meets the sleeper as it would static geometry (the
+            // contact solver holds it, an impact gives the sleeper a velocity and so wakes it
+            // next tick), so a resting body beside a sleeping island does not wake it every
+            // tick and keep both from ever sleeping.
+            let still2 = cfg.sleep_speed_mps * cfg.sleep_speed_mps;
+            let stirs = |k: u32| !b.asleep[k as usize] && b.vel[k as usize].length_squared() > still2;
             for c in &self.candidates {
                 let Partner::Body(j) = c.b else { continue };
-                self.wake_seeds.extend([c.a, j].into_iter().filter(|&k| b.asleep[k as usize]));
+                if b.asleep[c.a as usize] && stirs(j) {
+                    self.wake_seeds.push(c.a);
+                } else if b.asleep[j as usize] && stirs(c.a) {
+                    self.wake_seeds.push(j);
+                }
             }
         }
         if self.plan.statics || self.plan.terrain {

@@ -234,6 +234,20 @@ impl Stepper {
                             let jn = (1.0 + e) * closing * over / inv_sum;
                             new_va = va - n * (jn * inv_ma);
                             new_vb = vb + n * (jn * inv_mb);
+                            // Coulomb friction at the impact: a tangential impulse against the
+                            // slip, at most friction times the normal one (what stops a body
+                            // landing on a slope or on another body from skidding off it).
+                            if cfg.friction > 0.0 {
+                                let rel = new_va - new_vb;
+                                let slip = rel - n * rel.dot(n);
+                                let speed = slip.length();
+                                if speed > 0.0 {
+                                    let jt = (speed / inv_sum).min(cfg.friction * jn);
+                                    let dir = slip / speed;
+                                    new_va -= dir * (jt * inv_ma);
+                                    new_vb += dir * (jt * inv_mb);
+                                }
+                            }
                             if e == 0.0 && inv_mb == 0.0 {
                                 // A resting contact with static geometry slides like a player: in
                                 // a crease (a valley of the terrain) it keeps to the crease.
