@@ -11,6 +11,7 @@
 
 pub mod capsule_capsule;
 pub mod capsule_cuboid;
+pub(crate) mod capsule_triangle;
 pub mod cuboid_cuboid;
 pub mod cuboid_triangle;
 pub mod general;
@@ -130,12 +131,14 @@ pub fn contact(a: &Shape, ra: DQuat, b: &Shape, rb: DQuat, d: DVec3, margin: f64
 }
 
 /// Contact between `a` at the origin and the triangle `tri` (vertices relative to `a`'s centre),
-/// for height fields and meshes: the analytic sphere and box kernels, GJK for the rest. `None`
+/// for height fields and meshes: the analytic sphere, box and capsule kernels, GJK for the rest. `None`
 /// when they are farther apart than `margin`; the normal points from `a` to the triangle.
 pub(crate) fn triangle_contact(a: &Shape, ra: DQuat, tri: [DVec3; 3], margin: f64) -> Option<Contact> {
     match a {
         Shape::Sphere { radius } => sphere_triangle::contact(*radius, tri[0], tri[1], tri[2]),
         Shape::Cuboid { half_extents } => cuboid_triangle::contact(*half_extents, ra, tri, margin),
+        Shape::Capsule { half_height, radius } => capsule_triangle::contact(*half_height, *radius, ra, tri, margin)
+            .unwrap_or_else(|| general::contact_triangle(a, ra, tri, margin)),
         _ => general::contact_triangle(a, ra, tri, margin),
     }
 }

@@ -126,7 +126,8 @@ impl HeightField {
         self.triangle_at(x, z).map(|t| Self::plane_normal(&t).normalize())
     }
 
-    /// Calls `f` with every triangle whose cell overlaps `bounds` in x and z.
+    /// Calls `f` with every triangle whose cell overlaps `bounds` in x and z and whose heights
+    /// reach its y range (a triangle wholly above or below the box cannot touch what it bounds).
     pub(crate) fn for_each_triangle_in(&self, bounds: &Aabb, mut f: impl FnMut([DVec3; 3])) {
         if !bounds.overlaps(&self.bounds) {
             return;
@@ -139,7 +140,10 @@ impl HeightField {
         for iz in z0..=z1 {
             for ix in x0..=x1 {
                 for t in self.cell_triangles(ix, iz) {
-                    f(t);
+                    let (lo, hi) = (t[0].y.min(t[1].y).min(t[2].y), t[0].y.max(t[1].y).max(t[2].y));
+                    if hi >= bounds.min.y && lo <= bounds.max.y {
+                        f(t);
+                    }
                 }
             }
         }

@@ -222,6 +222,10 @@ pub struct Stepper {
     found: Vec<Found>,
     /// The candidates a settle pass may push, by index.
     pushable: Vec<u32>,
+    /// Settle's stamps: per body, the sequence number of its last push this tick; per pushable
+    /// entry, the number a check that needed no push was made at (0: not yet).
+    last_push: Vec<u64>,
+    checked_at: Vec<u64>,
     heap: BinaryHeap<Queued>,
     impacts: Vec<Impact>,
     triggers: Vec<Impact>,
@@ -283,6 +287,8 @@ impl Stepper {
             static_cands: Vec::new(),
             found: Vec::new(),
             pushable: Vec::new(),
+            last_push: Vec::new(),
+            checked_at: Vec::new(),
             heap: BinaryHeap::new(),
             impacts: Vec::new(),
             triggers: Vec::new(),
