@@ -1,0 +1,460 @@
+//! The remote world: the bodies a state stream shows, kept as samples of where each was and how
+//! it moved, and drawn at a render time between them.
+//!
+//! Feed it every [`StateFrame`] of a stream in arrival order ([`RemoteWorld::apply`]); each frame
+//! draws it ([`RemoteWorld::draw`]) at a render tick: the client clock's estimate of the server's
+//! present less the interpolation delay (100 ms by default, [`RemoteConfig::delay_s`]), so that
+//! the frames on either side of it have usually arrived.
+//!
+//! How a body is drawn at render tick `r`, from its samples (a tick, a position and a velocity,
+//! from the frames that carried it):
+//!
+//! - between a sample `a` at or before `r` and the next one `b` after it: the body moved from `a`
+//!   at `a`'s velocity until something changed it, and reached `b` at `b`'s. Drawn at the blend of
+//!   `a` carried forward and `b` carried back, weighted by where `r` lies between them: exactly
+//!   the server's motion when nothing changed it in between (both carry to the same point), and a
+//!   continuous path through a collision instead of a jump;
+//! - after its last sample: carried forward at that sample's velocity. A delta carries a body
+//!   when its position or velocity moved more than 1 mm (1 mm/s) from what the stream last said,
+//!   or later when the byte budget held it back, so between its samples this is where the server
+//!   has it, up to the stream's newest tick; beyond that (frames late) it is extrapolated, for at
+//!   most [`RemoteConfig::max_extrapolation_s`], and then held;
+//! - before its first sample (it has just entered): at that sample.
+//!
+//! The stream's rules (PROTOCOL.md, state streams): a full frame replaces what is held, a delta
+//! applies to the frame before it, and after a gap in the frame numbers deltas are ignored until
+//! the next full frame ([`RemoteWorld::needs_full_frame`] says so meanwhile; the bodies held are
+//! still drawn, extrapolated within the bound). Everything held is bounded: at most
+//! [`RemoteConfig::max_bodies`] bodies (more are counted and not shown) and
+//! [`RemoteConfig::history`] samples each. Nothing a server or network sends panics it.
+
+use impact_protocol::{BodyInfo, BodyMotion, EntityId, StateFrame, Tick};
+use std::collections::{BTreeMap, VecDeque};
+
+/// How the remote world interpolates and what it holds at most.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RemoteConfig {
+    /// The server's ticks per second (the world's `tick_hz`).
+    pub tick_hz: u32,
+    /// How far behind the server's present bodies are drawn, seconds (default 0.1, as Source's
+    /// `cl_interp`): two frames of a 20 Hz stream, so one may be lost or late.
+    pub delay_s: f64,
+    /// How long a body is carried forward past the stream's newest frame, seconds (default
+    /// 0.25); then it is held where it got to.
+    pub max_extrapolation_s: f64,
+    /// Most bodies held (default 65,536); bodies entering beyond it are counted and not shown.
+    pub max_bodies: usize,
+    /// Most samples held per body (default 32: at 20 frames a second, over a second and a half,
+    /// far more than the delay needs).
+    pub history: usize,
+}
+
+impl RemoteConfig {
+    /// The defaults for a world ticking at `tick_hz`.
+    pub fn new(tick_hz: u32) -> RemoteConfig {
+        RemoteConfig { tick_hz, delay_s: 0.1, max_extrapolation_s: 0.25, max_bodies: 65_536, history: 32 }
+    }
+
+    /// The interpolation delay in ticks.
+    pub fn delay_ticks(&self) -> f64 {
+        self.delay_s * f64::from(self.tick_hz.max(1))
+    }
+
+    fn dt(&self) -> f64 {
+        1.0 / f64::from(self.tick_hz.max(1))
+    }
+}
+
+/// Where a body was at a tick and how it moved, as a frame said.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sample {
+    /// The tick.
+    pub tick: Tick,
+    /// Centre, world frame, metres.
+    pub position: [f64; 3],
+    /// Velocity, m/s.
+    pub velocity: [f64; 3],
+    /// Asleep.
+    pub asleep: bool,
+}
+
+impl Sample {
+    /// Carried at its velocity to tick `t` (earlier or later), `dt` seconds a tick.
+    fn at(&self, t: f64, dt: f64) -> [f64; 3] {
+        let s = (t - f64::from(self.tick.0)) * dt;
+        std::array::from_fn(|k| self.position[k] + self.velocity[k] * s)
+    }
+}
+
+/// A body as drawn at a render tick.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DrawnBody {
+    /// The body.
+    pub entity: EntityId,
+    /// Centre, world frame, metres.
+    pub position: [f64; 3],
+    /// Velocity at the sample it was carried from, m/s.
+    pub velocity: [f64; 3],
+    /// Carried past the stream's newest frame (frames are late).
+    pub extrapolated: bool,
+}
+
+/// What [`RemoteWorld::apply`] did with a frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Applied {
+    /// Applied.
+    Applied,
+    /// A delta after a gap in the frame numbers (or before any full frame): ignored, and so is
+    /// every delta until the next full frame.
+    Gap,
+    /// A frame numbered before the one expected (a repeat): ignored.
+    Stale,
+}
+
+/// What the remote world counted.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct RemoteStats {
+    /// Frames applied.
+    pub frames: u64,
+    /// Full frames applied.
+    pub full_frames: u64,
+    /// Gaps seen in the frame numbers.
+    pub gaps: u64,
+    /// Frames ignored: deltas waiting for a full frame, and repeats.
+    pub ignored: u64,
+    /// Bodies not shown because [`RemoteConfig::max_bodies`] were held.
+    pub over_capacity: u64,
+    /// Motions or departures of bodies the stream never introduced: skipped.
+    pub unknown_bodies: u64,
+}
+
+#[derive(Debug)]
+struct Remote {
+    info: BodyInfo,
+    samples: VecDeque<Sample>,
+}
+
+/// The bodies of one state stream, drawn at a render tick (see the module docs).
+#[derive(Debug)]
+pub struct RemoteWorld {
+    cfg: RemoteConfig,
+    bodies: BTreeMap<EntityId, Remote>,
+    /// The frame number the next delta must carry; `None` until a full frame (or after a gap).
+    expected: Option<u32>,
+    newest: Option<Tick>,
+    stats: RemoteStats,
+}
+
+impl RemoteWorld {
+    /// An empty remote world; it shows bodies from the first full frame on.
+    pub fn new(cfg: RemoteConfig) -> RemoteWorld {
+        RemoteWorld { cfg, bodies: BTreeMap::new(), expected: None, newest: None, stats: RemoteStats::default() }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &RemoteConfig {
+        &self.cfg
+    }
+
+    /// What it counted.
+    pub fn stats(&self) -> &RemoteStats {
+        &self.stats
+    }
+
+    /// The newest tick a frame was applied at.
+    pub fn newest_tick(&self) -> Option<Tick> {
+        self.newest
+    }
+
+    /// Whether deltas are being ignored until a full frame comes (after a gap, or before the
+    /// first): the moment to ask the server for one, where the transport can.
+    pub fn needs_full_frame(&self) -> bool {
+        self.expected.is_none()
+    }
+
+    /// What never changes about a body held.
+    pub fn info(&self, entity: EntityId) -> Option<&BodyInfo> {
+        self.bodies.get(&entity).map(|b| &b.info)
+    }
+
+    /// How many bodies are held.
+    pub fn len(&self) -> usize {
+        self.bodies.len()
+    }
+
+    /// Whether no body is held.
+    pub fn is_empty(&self) -> bool {
+        self.bodies.is_empty()
+    }
+
+    /// Applies the next frame of the stream, in arrival order.
+    pub fn apply(&mut self, frame: &StateFrame) -> Applied {
+        if !frame.full {
+            match self.expected {
+                Some(n) if frame.frame == n => {}
+                Some(n) if frame.frame < n => {
+                    self.stats.ignored += 1;
+                    return Applied::Stale;
+                }
+                Some(_) => {
+                    self.stats.gaps += 1;
+                    self.stats.ignored += 1;
+                    self.expected = None;
+                    return Applied::Gap;
+                }
+                None => {
+                    self.stats.ignored += 1;
+                    return Applied::Gap;
+                }
+            }
+        } else {
+            if self.expected.is_some_and(|n| frame.frame < n) {
+                self.stats.ignored += 1;
+                return Applied::Stale;
+            }
+            // Exactly the bodies it lists; those held before keep their samples.
+            let listed: std::collections::BTreeSet<EntityId> =
+                frame.moved.iter().map(|m| m.0).chain(frame.entered.iter().map(|i| i.entity)).collect();
+            self.bodies.retain(|e, _| listed.contains(e));
+            self.stats.full_frames += 1;
+        }
+        for info in &frame.entered {
+            if let Some(b) = self.bodies.get_mut(&info.entity) {
+                b.info = info.clone();
+            } else if self.bodies.len() < self.cfg.max_bodies {
+                self.bodies.insert(info.entity, Remote { info: info.clone(), samples: VecDeque::new() });
+            } else {
+                self.stats.over_capacity += 1;
+            }
+        }
+        for m in &frame.moved {
+            self.record(frame.tick, m);
+        }
+        for e in &frame.left {
+            if self.bodies.remove(e).is_none() {
+                self.stats.unknown_bodies += 1;
+            }
+        }
+        self.expected = Some(frame.frame.wrapping_add(1));
+        self.newest = self.newest.max(Some(frame.tick));
+        self.stats.frames += 1;
+        Applied::Applied
+    }
+
+    fn record(&mut self, tick: Tick, m: &BodyMotion) {
+        let BodyMotion(entity, p, v, asleep) = *m;
+        let Some(b) = self.bodies.get_mut(&entity) else {
+            self.stats.unknown_bodies += 1;
+            return;
+        };
+        let finite = p.iter().chain(&v).all(|x| x.is_finite());
+        if !finite {
+            self.stats.unknown_bodies += 1;
+            return;
+        }
+        let sample = Sample { tick, position: p.map(f64::from), velocity: v.map(f64::from), asleep };
+        // Samples stay in tick order; one for a tick already held replaces it.
+        while b.samples.back().is_some_and(|s| s.tick >= tick) {
+            b.samples.pop_back();
+        }
+        b.samples.push_back(sample);
+        while b.samples.len() > self.cfg.history.max(1) {
+            b.samples.pop_front();
+        }
+    }
+
+    /// Every body held, drawn at `render_tick` (fractional), by ascending id, into `out`
+    /// (cleared first).
+    pub fn draw(&self, render_tick: f64, out: &mut Vec<DrawnBody>) {
+        out.clear();
+        out.extend(self.bodies.iter().filter_map(|(e, b)| self.drawn(*e, b, render_tick)));
+    }
+
+    /// One body drawn at `render_tick`, if held.
+    pub fn draw_one(&self, entity: EntityId, render_tick: f64) -> Option<DrawnBody> {
+        self.drawn(entity, self.bodies.get(&entity)?, render_tick)
+    }
+
+    /// Body `b` drawn at `render_tick` (see the module docs).
+    fn drawn(&self, entity: EntityId, b: &Remote, render_tick: f64) -> Option<DrawnBody> {
+        let newest = f64::from(self.newest?.0);
+        let first = b.samples.front()?;
+        let dt = self.cfg.dt();
+        let limit = newest + self.cfg.max_extrapolation_s * f64::from(self.cfg.tick_hz.max(1));
+        let r = render_tick.min(limit);
+        // The last sample at or before r, and the one after it.
+        let after = b.samples.partition_point(|s| f64::from(s.tick.0) <= r);
+        let (position, velocity) = match (after.checked_sub(1).map(|k| &b.samples[k]), b.samples.get(after)) {
+            (None, _) => (first.position, first.velocity),
+            (Some(a), None) => (a.at(r, dt), a.velocity),
+            (Some(a), Some(n)) => {
+                let (ta, tn) = (f64::from(a.tick.0), f64::from(n.tick.0));
+                let f = (r - ta) / (tn - ta);
+                let (pa, pn) = (a.at(r, dt), n.at(r, dt));
+                (std::array::from_fn(|k| pa[k] + (pn[k] - pa[k]) * f), a.velocity)
+            }
+        };
+        Some(DrawnBody { entity, position, velocity, extrapolated: render_tick > newest })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use impact_protocol::BodyShape;
+
+    const HZ: u32 = 64;
+
+    fn info(e: u32) -> BodyInfo {
+        BodyInfo {
+            entity: EntityId(e),
+            class: "ball".into(),
+            owner: None,
+            shape: BodyShape::Sphere,
+            half_extents_m: [0.5; 3],
+            offset_m: [0.0; 3],
+            fixed: false,
+        }
+    }
+
+    fn frame(frame: u32, tick: u32, full: bool, moved: &[(u32, [f32; 3], [f32; 3])]) -> StateFrame {
+        StateFrame {
+            tick: Tick(tick),
+            frame,
+            full,
+            entered: if full { moved.iter().map(|m| info(m.0)).collect() } else { Vec::new() },
+            moved: moved.iter().map(|&(e, p, v)| BodyMotion(EntityId(e), p, v, false)).collect(),
+            left: Vec::new(),
+            deferred: 0,
+            centre: None,
+        }
+    }
+
+    fn x_at(w: &RemoteWorld, e: u32, r: f64) -> f64 {
+        w.draw_one(EntityId(e), r).unwrap().position[0]
+    }
+
+    /// A body moving at constant velocity, carried in a full frame and never again (deltas carry
+    /// only changes), is drawn where the server has it, at any fractional tick.
+    #[test]
+    fn a_body_moving_as_it_was_is_drawn_exactly() {
+        let mut w = RemoteWorld::new(RemoteConfig::new(HZ));
+        assert_eq!(w.apply(&frame(0, 10, true, &[(1, [0.0, 1.0, 0.0], [2.0, 0.0, 0.0])])), Applied::Applied);
+        assert_eq!(w.apply(&frame(1, 13, false, &[])), Applied::Applied);
+        for r in [10.0, 11.25, 12.5, 13.0] {
+            let want = 2.0 * (r - 10.0) / 64.0;
+            assert!((x_at(&w, 1, r) - want).abs() < 1e-12, "at {r}: {} vs {want}", x_at(&w, 1, r));
+        }
+    }
+
+    /// A bounce between two frames: drawn exactly at each frame's tick, and continuously between
+    /// (no jump larger than the motion itself).
+    #[test]
+    fn a_collision_between_frames_is_drawn_as_a_continuous_path() {
+        let mut w = RemoteWorld::new(RemoteConfig::new(HZ));
+        w.apply(&frame(0, 0, true, &[(1, [0.0, 0.0, 0.0], [6.4, 0.0, 0.0])]));
+        // Bounced back at tick 2 (x = 0.2): at tick 4 it is at 0.0 moving at -6.4.
+        w.apply(&frame(1, 4, false, &[(1, [0.0, 0.0, 0.0], [-6.4, 0.0, 0.0])]));
+        assert!(x_at(&w, 1, 0.0).abs() < 1e-12 && x_at(&w, 1, 4.0).abs() < 1e-12);
+        // The blend of the two carried paths (0.1 r and 0.1 (4 - r) metres) is the parabola
+        // 0.2 r - 0.05 r^2: through the bounce point at tick 2, and never faster than twice the
+        // body's own speed, so no frame shows a jump.
+        assert!((x_at(&w, 1, 2.0) - 0.2).abs() < 1e-8, "{}", x_at(&w, 1, 2.0)); // 6.4 as f32
+        let mut last = x_at(&w, 1, 0.0);
+        for k in 1..=40 {
+            let x = x_at(&w, 1, f64::from(k) * 0.1);
+            assert!((x - last).abs() <= 2.0 * 0.1 * 6.4 / 64.0 + 1e-9, "jump at {k}: {last} -> {x}");
+            last = x;
+        }
+    }
+
+    /// Frames late: carried forward by velocity up to the bound, then held; the flag says so.
+    #[test]
+    fn extrapolation_is_bounded() {
+        let mut cfg = RemoteConfig::new(HZ);
+        cfg.max_extrapolation_s = 0.25; // 16 ticks
+        let mut w = RemoteWorld::new(cfg);
+        w.apply(&frame(0, 100, true, &[(1, [0.0; 3], [1.0, 0.0, 0.0])]));
+        let d = w.draw_one(EntityId(1), 108.0).unwrap();
+        assert!(d.extrapolated && (d.position[0] - 8.0 / 64.0).abs() < 1e-12);
+        assert!((x_at(&w, 1, 200.0) - 16.0 / 64.0).abs() < 1e-12, "held at the bound");
+        assert!(!w.draw_one(EntityId(1), 99.0).unwrap().extrapolated);
+    }
+
+    /// A gap in the frame numbers: deltas are ignored until the next full frame, which replaces
+    /// what is held; a repeat is stale.
+    #[test]
+    fn a_gap_waits_for_a_full_frame() {
+        let mut w = RemoteWorld::new(RemoteConfig::new(HZ));
+        assert_eq!(w.apply(&frame(5, 10, false, &[])), Applied::Gap, "a delta before any full frame");
+        assert!(w.needs_full_frame());
+        w.apply(&frame(6, 10, true, &[(1, [0.0; 3], [0.0; 3]), (2, [1.0, 0.0, 0.0], [0.0; 3])]));
+        assert!(!w.needs_full_frame() && w.len() == 2);
+        assert_eq!(w.apply(&frame(6, 10, false, &[])), Applied::Stale);
+        assert_eq!(w.apply(&frame(8, 14, false, &[(1, [5.0, 0.0, 0.0], [0.0; 3])])), Applied::Gap);
+        assert!(w.needs_full_frame());
+        assert_eq!(w.apply(&frame(9, 16, false, &[(1, [5.0, 0.0, 0.0], [0.0; 3])])), Applied::Gap);
+        assert_eq!(x_at(&w, 1, 16.0), 0.0, "ignored deltas moved nothing");
+        // The full frame lists body 1 only: body 2 goes, body 1 keeps its history.
+        w.apply(&frame(10, 18, true, &[(1, [0.0, 0.0, 0.0], [0.0; 3])]));
+        assert_eq!((w.len(), w.stats().gaps, w.stats().full_frames), (1, 1, 2));
+        assert!(w.info(EntityId(2)).is_none());
+    }
+
+    /// Bounds: bodies past `max_bodies` are counted and not shown; samples per body are capped;
+    /// motions of unknown bodies and non-finite values are counted and skipped.
+    #[test]
+    fn what_it_holds_is_bounded() {
+        let mut cfg = RemoteConfig::new(HZ);
+        cfg.max_bodies = 2;
+        cfg.history = 4;
+        let mut w = RemoteWorld::new(cfg);
+        w.apply(&frame(0, 0, true, &[(1, [0.0; 3], [0.0; 3]), (2, [0.0; 3], [0.0; 3]), (3, [0.0; 3], [0.0; 3])]));
+        assert_eq!((w.len(), w.stats().over_capacity), (2, 1));
+        assert_eq!(w.stats().unknown_bodies, 1, "body 3's motion");
+        for k in 1..20u32 {
+            w.apply(&frame(k, k, false, &[(1, [k as f32, 0.0, 0.0], [0.0; 3])]));
+        }
+        assert_eq!(w.bodies[&EntityId(1)].samples.len(), 4);
+        w.apply(&frame(20, 20, false, &[(1, [f32::NAN, 0.0, 0.0], [0.0; 3])]));
+        assert_eq!(x_at(&w, 1, 20.0), 19.0, "the NaN was skipped");
+        let mut left = frame(21, 21, false, &[]);
+        left.left = vec![EntityId(9)];
+        w.apply(&left);
+        assert_eq!(w.stats().unknown_bodies, 3);
+    }
+
+    proptest::proptest! {
+        /// Bodies on straight paths, carried at random frames (a full frame, then deltas that
+        /// sometimes repeat a body's unchanged motion): drawn at any tick up to the newest, each is
+        /// where its path puts it, within the f32 rounding of the stream.
+        #[test]
+        fn straight_paths_are_drawn_on_them(
+            starts in proptest::collection::vec((-50.0..50.0f32, -10.0..10.0f32), 1..8),
+            frames in proptest::collection::vec((1u32..6, proptest::bool::ANY), 1..12),
+            at in 0.0..1.0f64,
+        ) {
+            let mut w = RemoteWorld::new(RemoteConfig::new(HZ));
+            let path = |k: usize, t: u32| -> [f32; 3] {
+                let (x0, v) = starts[k];
+                [(f64::from(x0) + f64::from(v) * f64::from(t) / 64.0) as f32, 0.0, 0.0]
+            };
+            let all = |t: u32| -> Vec<(u32, [f32; 3], [f32; 3])> {
+                (0..starts.len()).map(|k| (k as u32, path(k, t), [starts[k].1, 0.0, 0.0])).collect()
+            };
+            w.apply(&frame(0, 0, true, &all(0)));
+            let mut tick = 0;
+            for (n, (step, resend)) in frames.iter().enumerate() {
+                tick += step;
+                let moved = if *resend { all(tick) } else { Vec::new() };
+                proptest::prop_assert_eq!(w.apply(&frame(n as u32 + 1, tick, false, &moved)), Applied::Applied);
+            }
+            let r = at * f64::from(tick);
+            for (k, &(x0, v)) in starts.iter().enumerate() {
+                let want = f64::from(x0) + f64::from(v) * r / 64.0;
+                let got = x_at(&w, k as u32, r);
+                proptest::prop_assert!((got - want).abs() < 1e-4, "body {k} at {r}: {got} vs {want}");
+            }
+        }
+    }
+}
