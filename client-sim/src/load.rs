@@ -13,11 +13,11 @@
 //! would cost a TCP connection and its buffers each, for nothing the test measures, and a single
 //! session would serialise every client's traffic through one link.
 
-use crate::delay::{DelayLine, Link, Rng};
 use crate::report::Report;
 use crate::timing::{Margins, Timing, DILATION};
-use crate::view::View;
 use hdrhistogram::Histogram;
+use impact_client::events::EventView;
+use impact_client::netsim::{DelayLine, Link, Rng};
 use impact_protocol::{
     keys, Action, ClientId, ClientInput, ClientMessage, Encoding, EntityId, RejectReason, ServerMessage, Tick, WorldId,
 };
@@ -162,7 +162,7 @@ struct Client {
     owed: BTreeMap<u32, u32>,
     /// Seqs acked, kept only while duplicates are injected: a second ack is a replay accepted.
     acked: std::collections::BTreeSet<u32>,
-    view: View,
+    view: EventView,
     /// Ahead mode: the lead in use (ticks; `None` until the first ack recommends one), the
     /// lead recommended last, and when the lead was last moved.
     lead: Option<f64>,
@@ -201,7 +201,7 @@ impl Client {
             sent: BTreeMap::new(),
             owed: BTreeMap::new(),
             acked: Default::default(),
-            view: View::default(),
+            view: EventView::default(),
             lead: None,
             lead_target: 0.0,
             lead_at: None,

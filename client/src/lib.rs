@@ -6,10 +6,15 @@
 //! - [`remote`]: the remote world, the bodies of a state stream as they are to be drawn at a
 //!   render time, interpolated between frames and extrapolated by velocity for a bounded time
 //!   when frames are late.
+//! - [`events`]: the event view, provisional events with corrections applied by identity, and
+//!   each confirmed tick compared with the view.
+//! - [`netsim`]: a network model (latency, jitter, loss) for testing a game locally.
 //!
 //! Still to come (issue 27): the clock and its time-sync exchange, input sequencing with acks and
-//! rejects, the event view, and prediction of the player's own avatar with the core.
+//! rejects, and prediction of the player's own avatar with the core.
 
 #![warn(missing_docs)]
 
+pub mod events;
+pub mod netsim;
 pub mod remote;

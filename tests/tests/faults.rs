@@ -16,7 +16,7 @@
 mod common;
 
 use common::process::{rss_mib, server_binary, Proc};
-use impact_client_sim::delay::Link;
+use impact_client::netsim::Link;
 use impact_client_sim::load::{self, Behaviour, Faults, LoadConfig};
 use impact_client_sim::timing::Timing;
 use impact_protocol::{Encoding, WorldId};
@@ -38,7 +38,7 @@ fn run(seed: u64) -> Result<String, String> {
     let pid = server.pid();
     std::thread::sleep(Duration::from_millis(800));
     let duration = Duration::from_secs(6);
-    let mut rng = impact_client_sim::delay::Rng::new(seed);
+    let mut rng = impact_client::netsim::Rng::new(seed);
     let latency = Duration::from_millis(20 + (rng.unit() * 80.0) as u64);
     let jitter = Duration::from_millis((rng.unit() * 30.0) as u64);
     let uplink = Link { latency, jitter, loss: rng.unit() * 0.05 };

@@ -326,7 +326,7 @@ fn state_and_history_queries_answer() {
 /// stream.
 #[test]
 fn ahead_clients_arrive_on_time_behind_clients_are_rolled_back_and_both_see_the_truth() {
-    use impact_client_sim::delay::Link;
+    use impact_client::netsim::Link;
     use impact_client_sim::load::{self, Behaviour, LoadConfig};
     use impact_client_sim::timing::Timing;
     for (timing, first) in [(Timing::Ahead, 100), (Timing::Behind, 200)] {

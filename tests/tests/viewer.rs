@@ -11,7 +11,7 @@ mod common;
 use common::browser::{http_get, Browser};
 use common::free_port;
 use common::process::{binary, server_binary, Proc};
-use impact_client_sim::delay::Link;
+use impact_client::netsim::Link;
 use impact_client_sim::load::{self, Behaviour, LoadConfig};
 use impact_client_sim::timing::Timing;
 use impact_protocol::WorldId;

@@ -9,7 +9,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
-use impact_client_sim::delay::Link;
+use impact_client::netsim::Link;
 use impact_client_sim::load::{self, Behaviour, LoadConfig};
 use impact_client_sim::net::{self, Mode};
 use impact_client_sim::process::{binary, zenohd, Proc};

@@ -2,7 +2,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
-use impact_client_sim::delay::Link;
+use impact_client::netsim::Link;
 use impact_client_sim::load::{self, Behaviour, LoadConfig};
 use impact_client_sim::net;
 use impact_client_sim::report::latency_svg;

@@ -1,7 +1,9 @@
-//! A delay line: items come out when their time is due, in the order they went in. Models one
-//! direction of a stream (Zenoh over TCP) with latency, jitter and loss: jitter moves delivery
-//! times but never reorders, because a stream does not (a message waits behind a slower one
-//! before it, head-of-line). Bounded: past `capacity` items, new ones are dropped and counted.
+//! A network model for testing a game locally (and the one `impact-sim` runs its clients
+//! behind): a delay line whose items come out when their time is due, in the order they went in.
+//! It models one direction of a stream (Zenoh over TCP) with latency, jitter and loss: jitter
+//! moves delivery times but never reorders, because a stream does not (a message waits behind a
+//! slower one before it, head-of-line). The caller passes the time in; nothing here reads a
+//! clock. Bounded: past `capacity` items, new ones are dropped and counted.
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;

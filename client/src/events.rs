@@ -1,0 +1,147 @@
+//! The event view: a client's collision events as they stand. Provisional `events` batches are
+//! applied as they come, then `corrections` by event identity (PROTOCOL.md, "Corrections"), and
+//! when a tick is confirmed its view is compared with the confirmed batch and the tick leaves the
+//! view. A game reads a tick's events as they stand with [`EventView::at`]; what it already showed
+//! and is corrected, it redraws.
+//!
+//! Bounded: at most [`MAX_TICKS`] ticks are held. The server confirms each tick once it leaves its
+//! rollback window, so a view holds about a window's worth; a view whose confirmations stop
+//! coming (a lost session) forgets its oldest ticks past the bound, and counts them.
+
+use impact_protocol::{CollisionEvent, CorrectionBatch, EventBatch, EventKey, Tick};
+use std::collections::BTreeMap;
+
+/// The most ticks an event view holds (about 16 seconds at 64 Hz; a window is a quarter second).
+pub const MAX_TICKS: usize = 1024;
+
+/// Per-tick events as the client holds them.
+#[derive(Debug, Default)]
+pub struct EventView {
+    ticks: BTreeMap<Tick, BTreeMap<EventKey, CollisionEvent>>,
+    /// Ticks whose view equalled the confirmed batch.
+    pub matched: u64,
+    /// Ticks whose view differed from the confirmed batch.
+    pub mismatched: u64,
+    /// Corrections applied.
+    pub corrections: u64,
+    /// Ticks forgotten unconfirmed because [`MAX_TICKS`] were held.
+    pub forgotten: u64,
+}
+
+fn same(a: &CollisionEvent, b: &CollisionEvent) -> bool {
+    let close = |x: &[f64; 3], y: &[f64; 3]| x.iter().zip(y).all(|(p, q)| (p - q).abs() <= 1e-6);
+    (a.toi - b.toi).abs() <= 1e-9
+        && close(&a.point, &b.point)
+        && close(&a.normal, &b.normal)
+        && a.response == b.response
+}
+
+impl EventView {
+    /// The tick's entry, making room under [`MAX_TICKS`] by forgetting the oldest.
+    fn tick(&mut self, tick: Tick) -> &mut BTreeMap<EventKey, CollisionEvent> {
+        if !self.ticks.contains_key(&tick) && self.ticks.len() >= MAX_TICKS {
+            self.ticks.pop_first();
+            self.forgotten += 1;
+        }
+        self.ticks.entry(tick).or_default()
+    }
+
+    /// Applies a provisional batch.
+    pub fn events(&mut self, b: &EventBatch) {
+        let t = self.tick(b.tick);
+        for e in &b.events {
+            t.insert(e.key(), e.clone());
+        }
+    }
+
+    /// Applies a correction.
+    pub fn correct(&mut self, c: &CorrectionBatch) {
+        self.corrections += 1;
+        let t = self.tick(c.tick);
+        for e in &c.retracted {
+            t.remove(&e.key());
+        }
+        for e in c.amended.iter().chain(&c.added) {
+            t.insert(e.key(), e.clone());
+        }
+    }
+
+    /// Compares the view of a confirmed tick with the batch and forgets the tick. Returns
+    /// whether they were equal.
+    pub fn confirm(&mut self, b: &EventBatch) -> bool {
+        let mine = self.ticks.remove(&b.tick).unwrap_or_default();
+        let ok =
+            mine.len() == b.events.len() && b.events.iter().all(|e| mine.get(&e.key()).is_some_and(|m| same(m, e)));
+        if ok {
+            self.matched += 1;
+        } else {
+            self.mismatched += 1;
+        }
+        ok
+    }
+
+    /// Ticks held (bounded by the server's window while confirmations arrive, and by
+    /// [`MAX_TICKS`]).
+    pub fn held(&self) -> usize {
+        self.ticks.len()
+    }
+
+    /// The events of an unconfirmed tick as they stand, by identity.
+    pub fn at(&self, tick: Tick) -> impl Iterator<Item = &CollisionEvent> {
+        self.ticks.get(&tick).into_iter().flat_map(|t| t.values())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use impact_protocol::{EntityId, EventStatus, Phase, Response};
+
+    fn event(a: u32, b: u32, toi: f64) -> CollisionEvent {
+        CollisionEvent {
+            tick: Tick(5),
+            toi,
+            a: EntityId(a),
+            b: EntityId(b),
+            point: [0.0; 3],
+            normal: [1.0, 0.0, 0.0],
+            depth_m: 0.0,
+            closing_speed_mps: 1.0,
+            phase: Phase::Begin,
+            response: Response::Bounce,
+            status: EventStatus::Provisional,
+        }
+    }
+
+    /// Events, then a correction that amends one and retracts another, then the confirmed batch:
+    /// the view as it stands matches it, and the tick leaves the view.
+    #[test]
+    fn corrections_apply_by_identity_and_confirmation_compares() {
+        let mut v = EventView::default();
+        v.events(&EventBatch { tick: Tick(5), revision: 0, events: vec![event(1, 2, 0.5), event(3, 4, 0.25)] });
+        let amended = event(1, 2, 0.75);
+        v.correct(&CorrectionBatch {
+            tick: Tick(5),
+            revision: 1,
+            retracted: vec![event(3, 4, 0.25)],
+            amended: vec![amended.clone()],
+            added: vec![],
+        });
+        assert_eq!(v.at(Tick(5)).collect::<Vec<_>>(), vec![&amended]);
+        assert!(v.confirm(&EventBatch { tick: Tick(5), revision: 1, events: vec![amended] }));
+        assert_eq!((v.held(), v.matched, v.corrections), (0, 1, 1));
+        v.events(&EventBatch { tick: Tick(6), revision: 0, events: vec![event(1, 2, 0.5)] });
+        assert!(!v.confirm(&EventBatch { tick: Tick(6), revision: 0, events: vec![] }));
+        assert_eq!(v.mismatched, 1);
+    }
+
+    /// Confirmations that never come: the oldest ticks go past the bound, counted.
+    #[test]
+    fn the_view_is_bounded() {
+        let mut v = EventView::default();
+        for t in 0..(MAX_TICKS as u32 + 10) {
+            v.events(&EventBatch { tick: Tick(t), revision: 0, events: vec![] });
+        }
+        assert_eq!((v.held(), v.forgotten), (MAX_TICKS, 10));
+    }
+}
