@@ -14,8 +14,9 @@
 //! session would serialise every client's traffic through one link.
 
 use crate::report::Report;
-use crate::timing::{Margins, Timing, DILATION};
+use crate::timing::{Margins, Timing};
 use hdrhistogram::Histogram;
+use impact_client::clock::Clock;
 use impact_client::events::EventView;
 use impact_client::netsim::{DelayLine, Link, Rng};
 use impact_protocol::{
@@ -151,9 +152,7 @@ struct Client {
     id: ClientId,
     behaviour: Behaviour,
     avatar: Option<EntityId>,
-    clock: Option<(Tick, Instant, u32)>,
-    /// This window's start and the largest and smallest (observed - estimated) tick offsets.
-    drift: Option<(Instant, i64, i64)>,
+    clock: Clock,
     seq: u32,
     next_action: Instant,
     /// Inputs in flight: when each was sent, and the view tick it carried.
@@ -163,30 +162,9 @@ struct Client {
     /// Seqs acked, kept only while duplicates are injected: a second ack is a replay accepted.
     acked: std::collections::BTreeSet<u32>,
     view: EventView,
-    /// Ahead mode: the lead in use (ticks; `None` until the first ack recommends one), the
-    /// lead recommended last, and when the lead was last moved.
-    lead: Option<f64>,
-    lead_target: f64,
-    lead_at: Option<Instant>,
     margins: Margins,
     corrections: u64,
 }
-
-/// How far (ticks) a client's clock may drift from the ticks of the batches it receives before
-/// it re-anchors. Both carry the same downlink delay, so they agree to within the jitter (80 +- 20
-/// ms is +-1.3 ticks at 64 Hz); a larger gap means the server's tick fell behind wall time (it
-/// drops a backlog after a stall rather than running fast), and a client that kept its old clock
-/// would stamp every later input in the future.
-pub const RESYNC_TICKS: u32 = 4;
-
-/// Drift smaller than [`RESYNC_TICKS`] is corrected once per window: if every tick heard in it
-/// was behind the clock (or every one ahead), the clock moves by the smallest such offset. The
-/// observation that came soonest is the best estimate of the server's tick (NTP keeps its
-/// minimum-delay sample for the same reason), so jitter alone never moves the clock, while a
-/// server that dropped a few ticks after a stall is followed within a window instead of leaving
-/// ahead clients stamping up to 4 ticks further ahead for good (the 30-minute soak found 5 % of
-/// inputs refused as `future` that way).
-pub const DRIFT_WINDOW: Duration = Duration::from_secs(1);
 
 impl Client {
     fn new(id: ClientId, behaviour: Behaviour, next_action: Instant) -> Client {
@@ -194,17 +172,13 @@ impl Client {
             id,
             behaviour,
             avatar: None,
-            clock: None,
-            drift: None,
+            clock: Clock::new(),
             seq: 0,
             next_action,
             sent: BTreeMap::new(),
             owed: BTreeMap::new(),
             acked: Default::default(),
             view: EventView::default(),
-            lead: None,
-            lead_target: 0.0,
-            lead_at: None,
             margins: Margins::default(),
             corrections: 0,
         }
@@ -224,91 +198,11 @@ impl Client {
             None => false,
         }
     }
-
-    /// The client's view tick: the newest server tick it heard of plus what its clock counted.
-    fn tick_estimate(&self, now: Instant) -> Option<Tick> {
-        let (tick, at, hz) = self.clock?;
-        Some(Tick(tick.0 + ((now - at).as_secs_f64() * f64::from(hz)) as u32))
-    }
-
-    /// A `future` reject of an input stamped `tick` at `view`: at its arrival the server accepted
-    /// ticks up to `newest`, so the lead it carried (`tick - view`) was too much by the excess.
-    /// The lead drops at once to one tick under what would have fitted (a burst of such rejects
-    /// lowers it once, not once each). Without this a client whose lead was raised by a delay
-    /// spike overshoots once the delay falls back, every input is refused, and no ack ever comes
-    /// to lower it (soak 2 refused 31 % of inputs that way); the next acks bring the
-    /// recommendation back as the spike ages out. An excess beyond [`RESYNC_TICKS`] is not the
-    /// lead's fault but the server's tick jumping back (it dropped a backlog after a stall): the
-    /// clock's resync corrects that, and lowering the lead too would make the next inputs late.
-    fn back_off(&mut self, tick: Tick, view: Tick, newest: Tick) {
-        let excess = tick.0.saturating_sub(newest.0);
-        if excess > RESYNC_TICKS {
-            return;
-        }
-        let most = f64::from(tick.0.saturating_sub(view.0)) - f64::from(excess) - 1.0;
-        if let Some(lead) = self.lead.as_mut() {
-            *lead = lead.min(most.max(0.0));
-            self.lead_target = self.lead_target.min(*lead);
-        }
-    }
-
-    /// An ack recommended `lead` ticks: the first sets the lead outright, later ones are reached
-    /// by time dilation in [`Client::stamp`].
-    fn recommend(&mut self, lead: u32) {
-        self.lead_target = f64::from(lead);
-        if self.lead.is_none() {
-            self.lead = Some(self.lead_target);
-        }
-    }
-
-    /// The tick to stamp an input with at `now`, and the view tick it was chosen from.
-    fn stamp(&mut self, timing: Timing, now: Instant) -> Option<(Tick, Tick)> {
-        let view = self.tick_estimate(now)?;
-        match (timing, self.lead) {
-            (Timing::Ahead, Some(lead)) => {
-                // Time dilation: the lead moves towards the target by at most DILATION of the
-                // ticks elapsed, so the stamped ticks never jump.
-                let hz = self.clock.map_or(64, |c| c.2);
-                let elapsed = self.lead_at.map_or(0.0, |at| (now - at).as_secs_f64() * f64::from(hz));
-                let step = DILATION * elapsed;
-                let lead = lead + (self.lead_target - lead).clamp(-step, step);
-                self.lead = Some(lead);
-                self.lead_at = Some(now);
-                Some((Tick(view.0 + lead.round().max(0.0) as u32), view))
-            }
-            // Behind, or ahead before the first recommendation: stamp what it sees.
-            _ => Some((view, view)),
-        }
-    }
-
-    /// A batch for `tick` arrived `now`: re-anchor the clock if it has drifted. Returns whether
-    /// it did.
-    fn observe(&mut self, tick: Tick, now: Instant) -> bool {
-        let (Some(est), Some((anchor, at, hz))) = (self.tick_estimate(now), self.clock) else { return false };
-        if est.0.abs_diff(tick.0) > RESYNC_TICKS {
-            self.clock = Some((tick, now, hz));
-            self.drift = None;
-            return true;
-        }
-        let off = i64::from(tick.0) - i64::from(est.0);
-        let w = self.drift.get_or_insert((now, off, off));
-        w.1 = w.1.max(off);
-        w.2 = w.2.min(off);
-        if now.saturating_duration_since(w.0) >= DRIFT_WINDOW {
-            let (hi, lo) = (w.1, w.2);
-            self.drift = None;
-            let shift = if hi < 0 { hi } else { lo.max(0) };
-            if shift != 0 {
-                self.clock = Some((Tick((i64::from(anchor.0) + shift).max(0) as u32), at, hz));
-            }
-        }
-        false
-    }
 }
 
 fn act(c: &mut Client, rng: &mut Rng, timing: Timing, now: Instant) -> Option<ClientInput> {
     let entity = c.avatar?;
-    let (tick, view) = c.stamp(timing, now)?;
+    let (tick, view) = c.clock.stamp(timing == Timing::Ahead, now)?;
     c.seq += 1;
     let dir = |rng: &mut Rng| {
         let a = std::f64::consts::TAU * rng.unit();
@@ -630,7 +524,7 @@ impl Run<'_> {
         }
         // Once a second every client hears the server's tick, even one that no event concerns.
         for c in self.clients.iter_mut() {
-            r.clock_resyncs += u64::from(c.observe(s.tick, now));
+            r.clock_resyncs += u64::from(c.clock.observe(s.tick, now));
         }
     }
 
@@ -642,14 +536,14 @@ impl Run<'_> {
                     r.clients_welcomed += 1;
                 }
                 c.avatar = w.avatar;
-                c.clock = Some((w.tick, now, w.tick_hz));
+                c.clock.anchor(w.tick, w.tick_hz, now);
                 // Spread the clients' actions over one period.
                 c.next_action = now + self.period.mul_f64(k as f64 / self.cfg.clients.max(1) as f64);
             }
             ServerMessage::Ack(a) => {
-                r.clock_resyncs += u64::from(c.observe(a.server_tick, now));
+                r.clock_resyncs += u64::from(c.clock.observe(a.server_tick, now));
                 c.margins.record(a.margin_ticks);
-                c.recommend(a.lead_ticks);
+                c.clock.recommend(a.lead_ticks);
                 r.answers_unexpected += u64::from(!c.answered(a.seq));
                 if self.cfg.faults.duplicate > 0.0 && !c.acked.insert(a.seq) {
                     r.answers_unexpected += 1; // a duplicate delivery was accepted
@@ -663,7 +557,7 @@ impl Run<'_> {
                 if let Some(seq) = j.seq {
                     let view = c.sent.remove(&seq).and_then(|(_, v)| v);
                     if let (RejectReason::Future, Some(t), Some(v), Some(n)) = (j.reason, j.tick, view, j.newest_tick) {
-                        c.back_off(t, v, n);
+                        c.clock.back_off(t, v, n);
                     }
                     // An accepted input whose entity went away before its tick was re-simulated
                     // is told so by a second message (PROTOCOL.md).
@@ -675,14 +569,14 @@ impl Run<'_> {
                 *r.rejects.entry(j.reason.name().to_string()).or_insert(0) += 1;
             }
             ServerMessage::Events(b) => {
-                r.clock_resyncs += u64::from(c.observe(b.tick, now));
+                r.clock_resyncs += u64::from(c.clock.observe(b.tick, now));
                 r.events_received += b.events.len() as u64;
                 c.view.events(&b);
             }
             ServerMessage::Corrections(cb) => {
                 r.corrections += 1;
                 c.corrections += 1;
-                if let Some(t) = c.tick_estimate(now) {
+                if let Some(t) = c.clock.server_tick(now) {
                     let _ = self.depth.record(u64::from(t.0.saturating_sub(cb.tick.0)).max(1));
                 }
                 c.view.correct(&cb);
@@ -809,110 +703,5 @@ impl Run<'_> {
         r.latency_histogram =
             (1..=top).map(|b| (b as f64 * 5.0, latency.count_between((b - 1) * bucket + 1, b * bucket))).collect();
         r
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn client(anchor: Tick, at: Instant) -> Client {
-        Client {
-            avatar: Some(EntityId(7)),
-            clock: Some((anchor, at, 64)),
-            ..Client::new(ClientId(1), Behaviour::Wander, at)
-        }
-    }
-
-    /// Ahead mode: the first recommendation is taken at once, a later one is approached at no
-    /// more than DILATION of the elapsed ticks, so the stamped ticks never jump; behind mode
-    /// stamps the view tick whatever the acks say.
-    #[test]
-    fn the_lead_follows_recommendations_by_time_dilation() {
-        let t0 = Instant::now();
-        let mut c = client(Tick(100), t0);
-        assert_eq!(c.stamp(Timing::Ahead, t0), Some((Tick(100), Tick(100))), "no lead before an ack");
-        c.recommend(12);
-        assert_eq!(c.stamp(Timing::Ahead, t0), Some((Tick(112), Tick(100))));
-        // The round trip shrinks: a lead of 2 is recommended. One second later (64 ticks) the
-        // lead has moved 6.4 ticks, not 10.
-        c.recommend(2);
-        let t1 = t0 + Duration::from_secs(1);
-        let (tick, view) = c.stamp(Timing::Ahead, t1).unwrap();
-        assert_eq!(view, Tick(164));
-        assert_eq!(tick, Tick(164 + 6), "12 - 6.4 rounds to 6");
-        // Another second reaches the target and stays there.
-        let t2 = t1 + Duration::from_secs(1);
-        assert_eq!(c.stamp(Timing::Ahead, t2), Some((Tick(230), Tick(228))));
-        assert_eq!(c.stamp(Timing::Behind, t2), Some((Tick(228), Tick(228))));
-    }
-
-    /// A server that stalled and dropped its backlog is behind the client's clock: the first
-    /// batch the client hears re-anchors it, so its inputs stop landing in the future. Jitter
-    /// within the bound leaves the clock alone.
-    #[test]
-    fn a_stalled_server_re_anchors_the_clock_and_jitter_does_not() {
-        let t0 = Instant::now();
-        let mut c = client(Tick(100), t0);
-        let now = t0 + Duration::from_secs(1); // the clock says tick 164
-        assert_eq!(c.tick_estimate(now), Some(Tick(164)));
-        assert!(!c.observe(Tick(164 - RESYNC_TICKS), now), "jitter within the bound");
-        assert_eq!(c.tick_estimate(now), Some(Tick(164)));
-        // The server lost 0.4 s to a stall: its batches say 138.
-        assert!(c.observe(Tick(138), now));
-        assert_eq!(c.tick_estimate(now), Some(Tick(138)));
-        assert_eq!(c.tick_estimate(now + Duration::from_millis(500)), Some(Tick(170)));
-    }
-
-    /// A lead raised by a delay spike overshoots once the delay is back: the `future` reject
-    /// lowers it at once, so the next input is accepted without waiting for an ack.
-    #[test]
-    fn a_future_reject_lowers_the_lead_at_once() {
-        let t0 = Instant::now();
-        let mut c = client(Tick(100), t0);
-        c.recommend(21); // a stall made the round trip look like 20 ticks
-        let (tick, view) = c.stamp(Timing::Ahead, t0).unwrap();
-        assert_eq!((tick, view), (Tick(121), Tick(100)));
-        // The server is at 110 when it arrives and accepts up to 118: a lead of 18 was the most.
-        c.back_off(tick, view, Tick(118));
-        let (tick, _) = c.stamp(Timing::Ahead, t0).unwrap();
-        assert_eq!(tick, Tick(117), "lead 18 - 1");
-        // The rest of the burst (inputs sent before the first reject came back) lowers it no more.
-        c.back_off(Tick(122), Tick(101), Tick(119));
-        assert_eq!(c.stamp(Timing::Ahead, t0).unwrap().0, Tick(117));
-        // An excess past the resync bound is the server's tick jumping back, not the lead.
-        c.back_off(Tick(140), Tick(120), Tick(125));
-        assert_eq!(c.stamp(Timing::Ahead, t0).unwrap().0, Tick(117));
-        // An ack recommending the old lead again is followed only by dilation, not a jump.
-        c.recommend(21);
-        let (tick, _) = c.stamp(Timing::Ahead, t0 + Duration::from_millis(100)).unwrap();
-        assert!(tick.0 <= 106 + 17 + 1, "{tick:?}");
-    }
-
-    /// Drift under the resync bound is followed within a window when every observation agrees,
-    /// and jitter (observations on both sides) leaves the clock alone.
-    #[test]
-    fn small_drift_is_followed_and_jitter_is_not() {
-        let t0 = Instant::now();
-        let mut c = client(Tick(100), t0);
-        // Jitter: a second of observations 1 tick either side.
-        for k in 0..=64u32 {
-            let now = t0 + Duration::from_secs_f64(f64::from(k) / 64.0);
-            let est = c.tick_estimate(now).unwrap();
-            let seen = if k % 2 == 0 { est.0 + 1 } else { est.0 - 1 };
-            assert!(!c.observe(Tick(seen), now));
-        }
-        let t1 = t0 + Duration::from_secs(1);
-        assert_eq!(c.tick_estimate(t1), Some(Tick(164)), "jitter moved the clock");
-        // The server fell 3 ticks behind (a dropped backlog): every observation says so.
-        // (The window that opens with the first of them closes a second later, at k = 65.)
-        for k in 1..=65u32 {
-            let now = t1 + Duration::from_secs_f64(f64::from(k) / 64.0);
-            let est = c.tick_estimate(now).unwrap();
-            let lag = if k % 2 == 0 { 3 } else { 2 };
-            assert!(!c.observe(Tick(est.0 - lag), now), "3 ticks is under the resync bound");
-        }
-        let t2 = t1 + Duration::from_secs_f64(65.0 / 64.0);
-        assert_eq!(c.tick_estimate(t2), Some(Tick(164 + 65 - 2)), "moved back by the smallest lag");
     }
 }

@@ -81,7 +81,7 @@ pub struct Report {
     /// The deepest rollback the server reported over the load, ticks.
     pub server_rollback_depth_max: u32,
     /// Times a client's tick clock was re-anchored because the server's batches showed it more
-    /// than [`crate::load::RESYNC_TICKS`] off (the server stalled, or dropped a backlog).
+    /// than [`impact_client::clock::RESYNC_TICKS`] off (the server stalled, or dropped a backlog).
     pub clock_resyncs: u64,
     /// How the clients stamped their inputs.
     pub timing: Option<crate::timing::Timing>,

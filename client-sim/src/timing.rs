@@ -1,6 +1,6 @@
-//! How a simulated client times its inputs (PROTOCOL.md, "Timing"): the two modes, the clock
-//! dilation an ahead client moves its lead by, and the histogram of arrival margins its acks
-//! report.
+//! How a simulated client times its inputs (PROTOCOL.md, "Timing"): the two modes (the clock
+//! that stamps them is the client library's, `impact_client::clock`), and the histogram of
+//! arrival margins its acks report.
 
 /// How a client stamps its inputs (PROTOCOL.md, "Timing").
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
@@ -10,14 +10,10 @@ pub enum Timing {
     /// rolls back for it (favours the mover: what it did happens where it saw it).
     Behind,
     /// Run ahead of the server by the lead its acks recommend, adjusted smoothly (the clock runs
-    /// up to [`DILATION`] fast or slow), so inputs arrive just before their tick: no rollback
+    /// up to [`impact_client::clock::DILATION`] fast or slow), so inputs arrive just before their tick: no rollback
     /// but for the late few. Shots are rewound to the view tick the input carries.
     Ahead,
 }
-
-/// The most an ahead client's clock runs fast or slow to reach a new recommended lead: 10 %,
-/// so a lead 13 ticks off is reached in about two seconds, with no jump in the ticks stamped.
-pub const DILATION: f64 = 0.1;
 
 /// Margins (ticks) counted per client, from `-MARGIN_SPAN` to `+MARGIN_SPAN` (outliers land in
 /// the end buckets).

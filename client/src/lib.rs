@@ -6,15 +6,18 @@
 //! - [`remote`]: the remote world, the bodies of a state stream as they are to be drawn at a
 //!   render time, interpolated between frames and extrapolated by velocity for a bounded time
 //!   when frames are late.
+//! - [`clock`]: the client's estimate of the server's tick, and the tick to stamp an input with
+//!   (behind, or ahead by the lead the acks recommend, moved by time dilation).
 //! - [`events`]: the event view, provisional events with corrections applied by identity, and
 //!   each confirmed tick compared with the view.
 //! - [`netsim`]: a network model (latency, jitter, loss) for testing a game locally.
 //!
-//! Still to come (issue 27): the clock and its time-sync exchange, input sequencing with acks and
-//! rejects, and prediction of the player's own avatar with the core.
+//! Still to come (issue 27): a time-sync exchange before the first input, input sequencing with
+//! acks, rejects and redundancy, and prediction of the player's own avatar with the core.
 
 #![warn(missing_docs)]
 
+pub mod clock;
 pub mod events;
 pub mod netsim;
 pub mod remote;
