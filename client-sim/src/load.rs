@@ -18,9 +18,10 @@ use crate::timing::{Margins, Timing};
 use hdrhistogram::Histogram;
 use impact_client::clock::Clock;
 use impact_client::events::EventView;
+use impact_client::inputs::{Outbox, Sent};
 use impact_client::netsim::{DelayLine, Link, Rng};
 use impact_protocol::{
-    keys, Action, ClientId, ClientInput, ClientMessage, Encoding, EntityId, RejectReason, ServerMessage, Tick, WorldId,
+    keys, Action, ClientId, ClientInput, ClientMessage, Encoding, EntityId, RejectReason, ServerMessage, WorldId,
 };
 use std::collections::BTreeMap;
 use std::io::{IsTerminal, Write};
@@ -153,10 +154,9 @@ struct Client {
     behaviour: Behaviour,
     avatar: Option<EntityId>,
     clock: Clock,
-    seq: u32,
+    /// Sequence numbers, and the inputs sent awaiting an answer (bounded).
+    outbox: Outbox,
     next_action: Instant,
-    /// Inputs in flight: when each was sent, and the view tick it carried.
-    sent: BTreeMap<u32, (Instant, Option<Tick>)>,
     /// Answers owed by the server, per seq: one per delivery (two for a duplicated input).
     owed: BTreeMap<u32, u32>,
     /// Seqs acked, kept only while duplicates are injected: a second ack is a replay accepted.
@@ -173,9 +173,8 @@ impl Client {
             behaviour,
             avatar: None,
             clock: Clock::new(),
-            seq: 0,
+            outbox: Outbox::default(),
             next_action,
-            sent: BTreeMap::new(),
             owed: BTreeMap::new(),
             acked: Default::default(),
             view: EventView::default(),
@@ -203,7 +202,7 @@ impl Client {
 fn act(c: &mut Client, rng: &mut Rng, timing: Timing, now: Instant) -> Option<ClientInput> {
     let entity = c.avatar?;
     let (tick, view) = c.clock.stamp(timing == Timing::Ahead, now)?;
-    c.seq += 1;
+    let seq = c.outbox.next_seq();
     let dir = |rng: &mut Rng| {
         let a = std::f64::consts::TAU * rng.unit();
         [a.cos(), 0.3 * (rng.unit() - 0.5), a.sin()]
@@ -216,7 +215,7 @@ fn act(c: &mut Client, rng: &mut Rng, timing: Timing, now: Instant) -> Option<Cl
         }
         Behaviour::Chase => {
             // The goal circles the middle of the world; players head roughly for it.
-            let t = now.elapsed().as_secs_f64() + f64::from(c.seq) * 0.1;
+            let t = now.elapsed().as_secs_f64() + f64::from(seq) * 0.1;
             let goal = [10.0 * t.cos(), 10.0, 10.0 * t.sin()];
             let jitter = dir(rng);
             Action::SetVelocity {
@@ -237,7 +236,7 @@ fn act(c: &mut Client, rng: &mut Rng, timing: Timing, now: Instant) -> Option<Cl
     };
     // Behind mode stamps the view tick itself; saying so again would change nothing.
     let view_tick = (timing == Timing::Ahead).then_some(view);
-    Some(ClientInput { client: c.id, seq: c.seq, tick, view_tick, actions: vec![action] })
+    Some(ClientInput { client: c.id, seq, tick, view_tick, actions: vec![action] })
 }
 
 /// The sessions the clients share, or with `users` one per client, authenticated as its user.
@@ -548,14 +547,14 @@ impl Run<'_> {
                 if self.cfg.faults.duplicate > 0.0 && !c.acked.insert(a.seq) {
                     r.answers_unexpected += 1; // a duplicate delivery was accepted
                 }
-                if let Some((sent, _)) = c.sent.remove(&a.seq) {
+                if let Some(sent) = c.outbox.answered(a.seq) {
                     r.acks += 1;
-                    let _ = self.latency.record((now - sent).as_micros().max(1) as u64);
+                    let _ = self.latency.record((now - sent.at).as_micros().max(1) as u64);
                 }
             }
             ServerMessage::Reject(j) => {
                 if let Some(seq) = j.seq {
-                    let view = c.sent.remove(&seq).and_then(|(_, v)| v);
+                    let view = c.outbox.answered(seq).and_then(|s| s.view);
                     if let (RejectReason::Future, Some(t), Some(v), Some(n)) = (j.reason, j.tick, view, j.newest_tick) {
                         c.clock.back_off(t, v, n);
                     }
@@ -598,12 +597,12 @@ impl Run<'_> {
             }
             c.next_action += self.period;
             let Some(input) = act(c, &mut self.rng, cfg.timing, now) else { continue };
-            let (seq, view) = (input.seq, input.view_tick);
+            let (seq, sent) = (input.seq, Sent { at: now, tick: input.tick, view: input.view_tick });
             let Ok(bytes) = impact_protocol::encode(&ClientMessage::Input(input), cfg.encoding) else { continue };
             self.r.inputs_sent += 1;
             let twice = self.rng.unit() < cfg.faults.duplicate;
             if self.up.send(now, &cfg.uplink, &mut self.rng, (k, seq, bytes.clone())) {
-                c.sent.insert(seq, (now, view));
+                c.outbox.sent(seq, sent);
                 if twice && self.up.send(now, &Link { loss: 0.0, ..cfg.uplink }, &mut self.rng, (k, seq, bytes)) {
                     self.r.inputs_duplicated += 1;
                 }
