@@ -43,6 +43,8 @@ pub struct Scene {
     /// Every `[world]` key as resolved: what the world runs with (recordings and checkpoints
     /// carry it).
     pub keys: WorldKeys,
+    /// What the scene says of itself that the defaults follow (its thinnest falling body).
+    pub facts: settings::SceneFacts,
     /// Every `[world]` key as resolved, and where each value came from (`--explain`).
     pub settings: Vec<settings::Setting>,
     /// What the keys contradict: a world that loads but cannot come to rest.
@@ -198,7 +200,8 @@ impl Builder {
     /// responses, the terrain, the bodies (placed in file order, ids ascending), the spawn rules.
     fn build(&self, def: &SceneFile) -> Result<Scene, SceneError> {
         let name = WorldId::new(def.world.name.clone()).map_err(|e| self.err("world.name", e.to_string()))?;
-        let (keys, settings) = settings::resolve(&def.world, settings::SceneFacts::of(def));
+        let facts = settings::SceneFacts::of(def);
+        let (keys, settings) = settings::resolve(&def.world, facts);
         let w = &keys;
         let bisect = self.world_keys(w)?;
         let (mut classes, immovable) = self.classes(def, w)?;
@@ -229,7 +232,7 @@ impl Builder {
             config: Arc::new(config),
         };
         let warnings = warnings::check(&keys, &world);
-        Ok(Scene { name, world, avatar, keys, settings, warnings })
+        Ok(Scene { name, world, avatar, keys, facts, settings, warnings })
     }
 
     /// Checks `[world]`'s keys; the bisection settings they give.

@@ -4,10 +4,9 @@
 
 use super::format::ResponseKind;
 use super::settings::WorldKeys;
-use crate::broadphase::{Broadphase, BroadphaseKind};
 use crate::geometry::Shape;
 use crate::narrow;
-use crate::par::Pool;
+use crate::sim::overlaps::{self, Other};
 use crate::sim::World;
 use glam::DVec3;
 use impact_protocol::EntityId;
@@ -123,32 +122,18 @@ fn overlapping(world: &World) -> Option<SceneWarning> {
     let b = &world.bodies;
     let slop = world.config.contact_slop_m;
     let classes = &world.config.classes;
-    let boxes: Vec<_> = (0..b.len()).map(|i| b.shape[i].world_aabb(b.pos[i], b.rot[i])).collect();
-    let mut pairs = Vec::new();
-    Broadphase::new(BroadphaseKind::Grid).pairs(&boxes, &mut pairs, &Pool::sequential());
-    let deep = |a: &Shape, ra, b: &Shape, rb, d| narrow::contact(a, ra, b, rb, d, 0.0).filter(|c| c.depth > slop);
     let mut found: Vec<(EntityId, EntityId, f64)> = Vec::new();
-    for &(i, j) in &pairs {
-        let (i, j) = (i as usize, j as usize);
-        if classes.rule(b.class[i], b.class[j]).stops() {
-            if let Some(c) = deep(&b.shape[i], b.rot[i], &b.shape[j], b.rot[j], b.pos[j] - b.pos[i]) {
-                found.push((b.id[i], b.id[j], c.depth));
-            }
+    overlaps::each(world, |i, other, c| {
+        let (class, id) = match other {
+            Other::Body(j) => (b.class[j], b.id[j]),
+            Other::Static(k) => (world.statics.class[k], world.statics.id[k]),
+            // The terrain is solid below its surface: a body placed through it is lifted out.
+            Other::Terrain => return,
+        };
+        if c.depth > slop && classes.rule(b.class[i], class).stops() {
+            found.push((b.id[i], id, c.depth));
         }
-    }
-    let s = &world.statics;
-    let mut near = Vec::new();
-    for (i, bounds) in boxes.iter().enumerate() {
-        s.index.query(bounds, &mut near);
-        for &k in &near {
-            let k = k as usize;
-            if classes.rule(b.class[i], s.class[k]).stops() {
-                if let Some(c) = deep(&b.shape[i], b.rot[i], &s.shape[k], s.rot[k], s.pos[k] - b.pos[i]) {
-                    found.push((b.id[i], s.id[k], c.depth));
-                }
-            }
-        }
-    }
+    });
     let (a, other, depth) = *found.iter().max_by(|x, y| x.2.total_cmp(&y.2))?;
     Some(SceneWarning {
         name: "bodies_overlap",

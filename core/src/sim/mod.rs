@@ -7,6 +7,7 @@
 pub mod input;
 pub mod island;
 pub mod output;
+pub mod overlaps;
 pub mod plan;
 pub mod ray;
 pub mod step;

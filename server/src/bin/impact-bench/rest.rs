@@ -23,11 +23,10 @@
 use super::report::{json_line, mean_ms, progress};
 use anyhow::{Context, Result};
 use clap::Args;
-use impact_core::broadphase::{Broadphase, BroadphaseKind};
 use impact_core::geometry::Shape;
-use impact_core::narrow;
-use impact_core::scene::settings::{SceneFacts, Source};
+use impact_core::scene::settings::Source;
 use impact_core::scene::Scene;
+use impact_core::sim::overlaps::{self, Other};
 use impact_core::sim::world::Rule;
 use impact_core::sim::{Plan, Stepper, TickOutput, World};
 use rapier3d::parry::utils::Array2;
@@ -217,39 +216,19 @@ impl Window {
     }
 }
 
-/// The deepest overlap in `w`: every dynamic pair whose boxes overlap, every dynamic body
-/// against the statics its box reaches and against the terrain, through impact's exact kernels.
+/// The deepest overlap in `w`: dynamic pairs, dynamic bodies against static geometry, and
+/// against the terrain where their classes meet it, through impact's exact kernels.
 fn penetration(w: &World) -> f64 {
-    let b = &w.bodies;
-    let boxes: Vec<_> = (0..b.len()).map(|i| b.shape[i].world_aabb(b.pos[i], b.rot[i])).collect();
-    let mut pairs = Vec::new();
-    Broadphase::new(BroadphaseKind::Grid).pairs(&boxes, &mut pairs, &impact_core::par::Pool::sequential());
     let mut worst = 0.0f64;
-    for (i, j) in pairs {
-        let (i, j) = (i as usize, j as usize);
-        if let Some(c) = narrow::contact(&b.shape[i], b.rot[i], &b.shape[j], b.rot[j], b.pos[j] - b.pos[i], 0.0) {
+    overlaps::each(w, |i, other, c| {
+        let meets = match (other, &w.statics.terrain) {
+            (Other::Terrain, Some(t)) => w.config.classes.rule(w.bodies.class[i], t.class) != Rule::Ignore,
+            _ => true,
+        };
+        if meets {
             worst = worst.max(c.depth);
         }
-    }
-    let mut found = Vec::new();
-    for (i, bounds) in boxes.iter().enumerate() {
-        w.statics.index.query(bounds, &mut found);
-        for &s in &found {
-            let s = s as usize;
-            let d = w.statics.pos[s] - b.pos[i];
-            if let Some(c) = narrow::contact(&b.shape[i], b.rot[i], &w.statics.shape[s], w.statics.rot[s], d, 0.0) {
-                worst = worst.max(c.depth);
-            }
-        }
-        if let Some(t) = &w.statics.terrain {
-            let rule = w.config.classes.rule(b.class[i], t.class);
-            if rule != Rule::Ignore && t.field.aabb().overlaps(bounds) {
-                if let Some(c) = narrow::terrain_contact(&b.shape[i], b.rot[i], b.pos[i], &t.field, 0.0) {
-                    worst = worst.max(c.depth);
-                }
-            }
-        }
-    }
+    });
     worst
 }
 
@@ -432,9 +411,7 @@ fn missed(name: &str, scene: &Scene, ours: &Run, peer: Option<&Run>, a: &RestArg
     }
     let pile = scene.name.as_str() == "pile";
     // The pile's penetration bound is relative to its spheres' radius.
-    let text = std::fs::read_to_string(scene_path(name)).unwrap_or_default();
-    let thin = toml::from_str(&text).ok().and_then(|def| SceneFacts::of(&def).thinnest_falling_m);
-    if let (true, Some(radius)) = (pile, thin) {
+    if let (true, Some(radius)) = (pile, scene.facts.thinnest_falling_m) {
         if ours.penetration_max_m >= 0.01 * radius {
             out.push(format!(
                 "{name}: penetration {:.2e} m, not under 1 % of the radius ({:.2e} m)",
