@@ -60,6 +60,14 @@ impl Outbox {
         seq
     }
 
+    /// Numbers go on from `next` if that is further than this outbox's own next number: the
+    /// server's `next_seq` after a reconnect (seqs are never reused while it remembers the
+    /// client). Inputs below it awaiting an answer were accepted, their acks lost: forgotten.
+    pub fn resume_from(&mut self, next: u32) {
+        self.next = self.next.max(next);
+        self.pending.retain(|&seq, _| seq >= next);
+    }
+
     /// Remembers input `seq` as sent; forgets the oldest past the capacity.
     pub fn sent(&mut self, seq: u32, sent: Sent) {
         self.pending.insert(seq, sent);

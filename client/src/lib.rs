@@ -14,9 +14,39 @@
 //!   each confirmed tick compared with the view.
 //! - [`netsim`]: a network model (latency, jitter, loss) for testing a game locally.
 //!
-//! Still to come (issue 27): a time-sync exchange before the first input, inputs that carry the
-//! unacknowledged ones before them (redundancy), and prediction of the player's own avatar with
-//! the core.
+//! - [`session`]: all of the above as one state machine, a client's whole side of the protocol:
+//!   join and welcome, the time-sync exchange, inputs with redundancy, the three views.
+//! - [`transport`] (feature `zenoh`, on by default): the session over Zenoh, the only I/O here.
+//!
+//! A game, in a few lines (`examples/play.rs` is a whole one):
+//!
+//! ```no_run
+//! use impact_client::transport::{ConnectOptions, Connection};
+//! use impact_client::{Session, SessionConfig, Status};
+//! use impact_protocol::{Action, ClientId, WorldId};
+//! use std::time::Instant;
+//!
+//! let me = ClientId(1);
+//! let world = WorldId::new("arena")?;
+//! let conn = Connection::open(&ConnectOptions::new(vec!["tcp/127.0.0.1:7447".into()], world, me))?;
+//! let mut game = Session::new(SessionConfig::new(me));
+//! let mut drawn = Vec::new();
+//! loop {
+//!     let now = Instant::now();
+//!     conn.pump(&mut game, now)?; // what arrived in, what is due out
+//!     if let (Status::Playing, Some(avatar)) = (game.status(), game.avatar()) {
+//!         game.input(vec![Action::SetVelocity { entity: avatar, velocity: [2.0, 0.0, 0.0] }], now)?;
+//!     }
+//!     game.draw_remote(now, &mut drawn); // the remote world at render time: draw it
+//!     for ray in game.take_ray_results() { /* hits */ }
+//!     let _confirmed_ok = game.events().matched; // the event view
+//!     # break;
+//! }
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+//!
+//! Still to come (issue 27): prediction of the player's own avatar with the core, and the wire
+//! additions it needs (the avatar's full core state, the static world as resolved values).
 
 #![warn(missing_docs)]
 
@@ -25,3 +55,8 @@ pub mod events;
 pub mod inputs;
 pub mod netsim;
 pub mod remote;
+pub mod session;
+#[cfg(feature = "zenoh")]
+pub mod transport;
+
+pub use session::{InputError, Session, SessionConfig, SessionStats, Status};

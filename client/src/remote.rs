@@ -19,7 +19,9 @@
 //!   or later when the byte budget held it back, so between its samples this is where the server
 //!   has it, up to the stream's newest tick; beyond that (frames late) it is extrapolated, for at
 //!   most [`RemoteConfig::max_extrapolation_s`], and then held;
-//! - before its first sample (it has just entered): at that sample.
+//! - before its first sample (it has just entered the view, moving): carried back at that sample's
+//!   velocity, where the server had it (held at the sample instead, it would be drawn up to the
+//!   interpolation delay ahead of where it was: 0.5 m at 5 m/s).
 //!
 //! The stream's rules (PROTOCOL.md, state streams): a full frame replaces what is held, a delta
 //! applies to the frame before it, and after a gap in the frame numbers deltas are ignored until
@@ -285,7 +287,7 @@ impl RemoteWorld {
         // The last sample at or before r, and the one after it.
         let after = b.samples.partition_point(|s| f64::from(s.tick.0) <= r);
         let (position, velocity) = match (after.checked_sub(1).map(|k| &b.samples[k]), b.samples.get(after)) {
-            (None, _) => (first.position, first.velocity),
+            (None, _) => (first.at(r, dt), first.velocity),
             (Some(a), None) => (a.at(r, dt), a.velocity),
             (Some(a), Some(n)) => {
                 let (ta, tn) = (f64::from(a.tick.0), f64::from(n.tick.0));
@@ -345,6 +347,20 @@ mod tests {
             let want = 2.0 * (r - 10.0) / 64.0;
             assert!((x_at(&w, 1, r) - want).abs() < 1e-12, "at {r}: {} vs {want}", x_at(&w, 1, r));
         }
+    }
+
+    /// A body that enters the view moving is drawn, before its first sample, where the server
+    /// had it then: carried back, not held ahead of itself.
+    #[test]
+    fn a_body_entering_is_carried_back_before_its_first_sample() {
+        let mut w = RemoteWorld::new(RemoteConfig::new(HZ));
+        w.apply(&frame(0, 10, true, &[]));
+        let mut entering = frame(1, 16, false, &[(1, [1.0, 0.0, 0.0], [6.4, 0.0, 0.0])]);
+        entering.entered.push(info(1));
+        assert_eq!(w.apply(&entering), Applied::Applied);
+        // Six ticks before it entered (a 100 ms delay at 64 Hz): 0.6 m back.
+        assert!((x_at(&w, 1, 10.0) - 0.4).abs() < 1e-6, "{}", x_at(&w, 1, 10.0));
+        assert!((x_at(&w, 1, 16.0) - 1.0).abs() < 1e-12);
     }
 
     /// A bounce between two frames: drawn exactly at each frame's tick, and continuously between

@@ -36,8 +36,9 @@ pub use event::{CollisionEvent, EventKey, EventStatus, Phase, Response};
 pub use ids::{ClientId, EntityId, Tick, WorldId};
 pub use log::{Admitted, Checkpoint, LogTick, LoggedInput, LoggedSystem};
 pub use message::{
-    Action, BodyState, ClientInput, ClientMessage, CorrectionBatch, EventBatch, EventHistory, InputAck, InputReject,
-    QueryError, RayHit, RayResult, RejectReason, ServerMessage, ServerStats, ShapeSpec, Welcome, WorldSnapshot,
+    Action, BodyState, ClientInput, ClientMessage, CorrectionBatch, EventBatch, EventHistory, InputAck, InputBatch,
+    InputReject, QueryError, RayHit, RayResult, RejectReason, ServerMessage, ServerStats, ShapeSpec, TimePing,
+    TimePong, Welcome, WorldSnapshot,
 };
 pub use state::{BodyInfo, BodyMotion, BodyShape, StateFrame};
 pub use validate::Validate;

@@ -8,6 +8,10 @@ pub const MAX_CLIENT_MESSAGE_BYTES: usize = 4 * 1024;
 /// Largest server -> client payload, in bytes (a full world snapshot of 100k bodies fits).
 pub const MAX_SERVER_MESSAGE_BYTES: usize = 32 * 1024 * 1024;
 
+/// Most inputs one [`InputBatch`](crate::message::InputBatch) may carry: the newest and up to
+/// three unanswered ones before it.
+pub const MAX_INPUTS_PER_MESSAGE: usize = 4;
+
 /// Most actions one input may carry.
 pub const MAX_ACTIONS_PER_INPUT: usize = 16;
 

@@ -18,6 +18,45 @@ use std::collections::BTreeMap;
 pub enum ClientMessage {
     /// Inputs stamped with the tick the client saw when it acted.
     Input(ClientInput),
+    /// Several inputs in one message, oldest first: the newest and the unanswered ones before it,
+    /// so one lost message loses no input (redundancy). Each `seq` applies once: a repeat of an
+    /// accepted one is skipped without an answer.
+    Inputs(InputBatch),
+    /// A time-sync probe: the server answers at once with a [`ServerMessage::Pong`] naming its
+    /// tick, so a client measures its round trip before its first input.
+    Ping(TimePing),
+}
+
+/// Several inputs of one client, oldest first (at most
+/// [`MAX_INPUTS_PER_MESSAGE`](crate::limits::MAX_INPUTS_PER_MESSAGE)).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct InputBatch {
+    /// The sender; every input in `inputs` names it too.
+    pub client: ClientId,
+    /// The inputs, by ascending `seq`.
+    pub inputs: Vec<ClientInput>,
+}
+
+/// A time-sync probe (see [`ClientMessage::Ping`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TimePing {
+    /// The sender.
+    pub client: ClientId,
+    /// The client's number for this probe, echoed in the answer.
+    pub id: u32,
+}
+
+/// The answer to a [`TimePing`], on the client's `ack` key.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TimePong {
+    /// The client.
+    pub client: ClientId,
+    /// The probe's `id`.
+    pub id: u32,
+    /// The server's current tick when it handled the probe (the next tick it simulates), as in
+    /// [`InputAck::server_tick`]: handled where inputs are, so the round trip it measures is the
+    /// one an input sees.
+    pub server_tick: Tick,
 }
 
 /// One batch of actions a client took at `tick`.
@@ -74,6 +113,8 @@ pub enum ServerMessage {
     Checkpoint(crate::log::Checkpoint),
     /// A frame of a state stream (`state`, `client/{id}/state`).
     State(crate::state::StateFrame),
+    /// The answer to a time-sync probe ([`ClientMessage::Ping`]).
+    Pong(TimePong),
 }
 
 /// The events of one tick.
@@ -330,6 +371,10 @@ pub struct ServerStats {
     pub inputs_accepted: u64,
     /// Inputs rejected since start, by reason (snake_case reason name -> count).
     pub inputs_rejected: BTreeMap<String, u64>,
+    /// Inputs skipped since start because their `seq` was already accepted: the redundant
+    /// copies an [`InputBatch`] carries, and resends. Neither accepted nor rejected.
+    #[serde(default)]
+    pub inputs_repeated: u64,
     /// Events published per second.
     pub events_per_s: f64,
     /// Deepest the ingress queue got in the period.

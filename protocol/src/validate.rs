@@ -153,10 +153,35 @@ impl Validate for ClientInput {
     }
 }
 
+impl InputBatch {
+    /// The batch's own bounds, apart from its inputs' (a receiver answers each input on its
+    /// own): 1 to [`MAX_INPUTS_PER_MESSAGE`] inputs, each naming the batch's client.
+    pub fn validate_envelope(&self) -> Result<(), ProtocolError> {
+        if self.inputs.is_empty() || self.inputs.len() > MAX_INPUTS_PER_MESSAGE {
+            return Err(ProtocolError::OutOfRange {
+                field: "inputs".into(),
+                detail: format!("{} inputs, not 1 to {MAX_INPUTS_PER_MESSAGE}", self.inputs.len()),
+            });
+        }
+        match self.inputs.iter().position(|i| i.client != self.client) {
+            Some(i) => Err(ProtocolError::OutOfRange {
+                field: format!("inputs[{i}].client"),
+                detail: format!("{} differs from the batch's client {}", self.inputs[i].client, self.client),
+            }),
+            None => Ok(()),
+        }
+    }
+}
+
 impl Validate for ClientMessage {
     fn validate(&self) -> Result<(), ProtocolError> {
         match self {
             ClientMessage::Input(input) => input.validate(),
+            ClientMessage::Inputs(batch) => {
+                batch.validate_envelope()?;
+                batch.inputs.iter().try_for_each(Validate::validate)
+            }
+            ClientMessage::Ping(_) => Ok(()),
         }
     }
 }
@@ -247,7 +272,8 @@ impl Validate for ServerMessage {
             | ServerMessage::QueryError(_)
             | ServerMessage::Log(_)
             | ServerMessage::Admitted(_)
-            | ServerMessage::Checkpoint(_) => Ok(()),
+            | ServerMessage::Checkpoint(_)
+            | ServerMessage::Pong(_) => Ok(()),
         }
     }
 }

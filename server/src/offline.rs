@@ -42,6 +42,7 @@ pub fn read_inputs(path: &Path) -> Result<InputScript, OfflineError> {
         detail: e.to_string(),
     })?;
     let mut script = InputScript::new();
+    let mut seen = std::collections::BTreeSet::new();
     for (k, line) in std::io::BufReader::new(f).lines().enumerate() {
         let line = line.map_err(|e| OfflineError::Inputs { file: file.clone(), line: k + 1, detail: e.to_string() })?;
         let trimmed = line.trim();
@@ -50,11 +51,23 @@ pub fn read_inputs(path: &Path) -> Result<InputScript, OfflineError> {
         }
         let msg: ClientMessage = impact_protocol::decode(trimmed.as_bytes(), Encoding::Json, MAX_CLIENT_MESSAGE_BYTES)
             .map_err(|e| OfflineError::Inputs { file: file.clone(), line: k + 1, detail: e.to_string() })?;
-        let ClientMessage::Input(input) = msg;
-        script
-            .entry(input.tick.0)
-            .or_default()
-            .push(TickInput { view_tick: input.view_tick, ..TickInput::new(input.client, input.seq, input.actions) });
+        let inputs = match msg {
+            ClientMessage::Input(input) => vec![input],
+            ClientMessage::Inputs(batch) => batch.inputs,
+            ClientMessage::Ping(_) => {
+                let detail = "a ping is not an input: only `input` and `inputs` lines apply".to_string();
+                return Err(OfflineError::Inputs { file: file.clone(), line: k + 1, detail });
+            }
+        };
+        for input in inputs {
+            // Each (client, seq) applies once, as on a server: a batch repeats earlier inputs.
+            if seen.insert((input.client, input.seq)) {
+                script.entry(input.tick.0).or_default().push(TickInput {
+                    view_tick: input.view_tick,
+                    ..TickInput::new(input.client, input.seq, input.actions)
+                });
+            }
+        }
     }
     Ok(script)
 }

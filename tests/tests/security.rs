@@ -90,15 +90,25 @@ fn a_user_acts_listens_and_appears_only_as_itself() {
     assert_eq!(answer(&alice_ack, 2, Duration::from_millis(500)), None, "the forged input reached the server");
 
     // Replay: seq 1, accepted seconds ago (its tick long confirmed), sent again with a fresh tick
-    // by alice herself is a duplicate; the window outlives the rollback window.
+    // by alice herself is a repeat: not applied again, and no reject either (a client resending
+    // after a reconnect, or carrying it as a redundant copy, did nothing wrong); the server counts
+    // it. The window outlives the rollback window.
+    let stats = Inbox::new(&alice, keys::STATS.key(&world, None));
     let t = now(&alice);
     send(&alice, &world, &walk(alice_id, 1, Tick(t.0 + 2), avatar), Encoding::MsgPack);
-    let replayed = alice_ack.wait_for(Duration::from_secs(5), |m| match m {
-        ServerMessage::Reject(r) if r.seq == Some(1) => Some(r.reason),
-        ServerMessage::Ack(a) if a.seq == 1 => panic!("a replayed seq was accepted: {a:?}"),
+    send(&alice, &world, &walk(alice_id, 4, Tick(t.0 + 2), avatar), Encoding::MsgPack);
+    assert_eq!(answer(&alice_ack, 4, Duration::from_secs(5)), Some(true), "the input after the replay");
+    let replayed = alice_ack.wait_for(Duration::from_millis(500), |m| match m {
+        ServerMessage::Reject(r) if r.seq == Some(1) => Some(format!("rejected: {r:?}")),
+        ServerMessage::Ack(a) if a.seq == 1 => Some(format!("a replayed seq was accepted: {a:?}")),
         _ => None,
     });
-    assert_eq!(replayed, Some(impact_protocol::RejectReason::Duplicate));
+    assert_eq!(replayed, None);
+    let repeated = stats.wait_for(Duration::from_secs(3), |m| match m {
+        ServerMessage::Stats(s) if s.inputs_repeated > 0 => Some(s.inputs_repeated),
+        _ => None,
+    });
+    assert_eq!(repeated, Some(1), "the server counted the repeat");
 
     // Eavesdropping: alice received her welcome and acks; mallory received none of them.
     let anything = |inbox: &Inbox| inbox.wait_for(Duration::from_millis(500), |m| Some(format!("{m:?}")));
@@ -120,7 +130,8 @@ fn a_user_acts_listens_and_appears_only_as_itself() {
     assert!(matches!(query(&mallory, keys::QUERY_STATE.key(&world, None), ""), Some(ServerMessage::Snapshot(_))));
 
     let summary = server.stop();
-    assert_eq!(summary.inputs_accepted, 2, "only alice's two inputs were accepted: {summary}");
+    assert_eq!(summary.inputs_accepted, 3, "only alice's three inputs were accepted: {summary}");
+    assert_eq!(summary.inputs_repeated, 1, "{summary}");
 }
 
 #[test]

@@ -55,14 +55,39 @@ pub fn action() -> impl Strategy<Value = Action> {
     ]
 }
 
-pub fn client_message() -> impl Strategy<Value = ClientMessage> {
+pub fn client_input() -> impl Strategy<Value = ClientInput> {
     (client(), any::<u32>(), tick(), vec(action(), 0..=limits::MAX_ACTIONS_PER_INPUT)).prop_map(
         |(client, seq, tick, actions)| {
             // Every other input says what its client was looking at.
             let view_tick = (seq % 2 == 0).then_some(Tick(tick.0 / 2));
-            ClientMessage::Input(ClientInput { client, seq, tick, view_tick, actions })
+            ClientInput { client, seq, tick, view_tick, actions }
         },
     )
+}
+
+pub fn client_message() -> impl Strategy<Value = ClientMessage> {
+    prop_oneof![
+        3 => client_input().prop_map(ClientMessage::Input),
+        // A batch: one client's inputs, by ascending seq, at most four actions each so the
+        // message stays within its size limit.
+        1 => (client(), any::<u32>(), tick(), vec(vec(action(), 0..=4), 1..=limits::MAX_INPUTS_PER_MESSAGE)).prop_map(
+            |(client, seq, tick, actions)| {
+                let inputs = actions
+                    .into_iter()
+                    .enumerate()
+                    .map(|(k, actions)| ClientInput {
+                        client,
+                        seq: seq.wrapping_add(k as u32),
+                        tick: Tick(tick.0.wrapping_add(k as u32)),
+                        view_tick: None,
+                        actions,
+                    })
+                    .collect();
+                ClientMessage::Inputs(InputBatch { client, inputs })
+            }
+        ),
+        1 => (client(), any::<u32>()).prop_map(|(client, id)| ClientMessage::Ping(TimePing { client, id })),
+    ]
 }
 
 pub fn event() -> impl Strategy<Value = CollisionEvent> {
@@ -223,6 +248,7 @@ fn stats() -> impl Strategy<Value = ServerMessage> {
                 rollback_depth_max: 7,
                 inputs_accepted: overruns / 2,
                 inputs_rejected: rejected,
+                inputs_repeated: overruns / 3,
                 events_per_s: eps,
                 queue_depth_max: 9,
                 tick_ms: vec![p50 as f32, p99 as f32],

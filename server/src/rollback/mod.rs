@@ -610,6 +610,14 @@ impl Session {
         self.windows.get(&client).map_or(0, seq_window::SeqWindow::next_seq)
     }
 
+    /// Whether `seq` of `client` was accepted already (and is still told apart by its replay
+    /// window): a repeat the runtime skips without an answer, as the redundant copies in an
+    /// input batch are. A seq below the window's floor is not a repeat: [`Session::submit`]
+    /// refuses it as a duplicate, since the window can no longer tell.
+    pub fn already_accepted(&self, client: ClientId, seq: u32) -> bool {
+        self.windows.get(&client).is_some_and(|w| w.check(seq) == Err(seq_window::Replay::Seen))
+    }
+
     /// Drops `client`'s replay window: the runtime calls it when the client's presence is over
     /// (left, and the grace period passed). A client that returns later starts from seq 0.
     pub fn forget_client(&mut self, client: ClientId) {

@@ -8,7 +8,8 @@ use super::timing::LeadEstimator;
 use crate::rollback::RollbackConfig;
 use impact_core::scene::Scene;
 use impact_protocol::{
-    encode, keys, ClientId, ClientInput, Encoding, EntityId, InputReject, RejectReason, ServerMessage, Tick, WorldId,
+    encode, keys, ClientId, ClientInput, Encoding, EntityId, InputReject, RejectReason, ServerMessage, Tick, TimePing,
+    WorldId,
 };
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -138,9 +139,11 @@ enum Control {
     Leave(ClientId),
 }
 
-struct Ingress {
-    input: ClientInput,
-    encoding: Encoding,
+/// What the input subscriber hands the tick thread: inputs, and time-sync probes (answered
+/// there, so the round trip a probe measures includes the queue an input waits in).
+enum Ingress {
+    Input { input: ClientInput, encoding: Encoding },
+    Ping { ping: TimePing, encoding: Encoding },
 }
 
 struct ClientState {

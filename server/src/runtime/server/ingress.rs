@@ -50,31 +50,53 @@ pub(super) fn declare_primary(
                         format!("unknown encoding {tag:?}: use application/msgpack or application/json"),
                     );
                 }
-                let input = match decode_unchecked::<ClientMessage>(&bytes, encoding, MAX_CLIENT_MESSAGE_BYTES) {
+                let inputs = match decode_unchecked::<ClientMessage>(&bytes, encoding, MAX_CLIENT_MESSAGE_BYTES) {
                     Err(e) => return refuse(client, header(), e.reject_reason(), e.to_string()),
-                    Ok(ClientMessage::Input(input)) => input,
+                    Ok(ClientMessage::Input(input)) => vec![input],
+                    Ok(ClientMessage::Inputs(batch)) => {
+                        if batch.client != client {
+                            let detail =
+                                format!("inputs name client {} but were sent on client {client}'s key", batch.client);
+                            return refuse(client, None, RejectReason::NotOwner, detail);
+                        }
+                        if let Err(e) = batch.validate_envelope() {
+                            return refuse(client, None, e.reject_reason(), e.to_string());
+                        }
+                        batch.inputs
+                    }
+                    Ok(ClientMessage::Ping(ping)) => {
+                        // A probe lost to a full queue is one the client sends again.
+                        if ping.client == client {
+                            let _ = tx.try_send(Ingress::Ping { ping, encoding });
+                        }
+                        return;
+                    }
                 };
-                let here = Some((input.seq, input.tick));
-                if input.client != client {
-                    return refuse(
-                        client,
-                        here,
-                        RejectReason::NotOwner,
-                        format!("input names client {} but was sent on client {client}'s key", input.client),
-                    );
-                }
-                if let Err(e) = input.validate() {
-                    return refuse(client, here, e.reject_reason(), e.to_string());
-                }
-                if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) =
-                    tx.try_send(Ingress { input, encoding })
-                {
-                    refuse(
-                        client,
-                        here,
-                        RejectReason::QueueFull,
-                        "the server's ingress queue is full; resend later".into(),
-                    );
+                for input in inputs {
+                    let here = Some((input.seq, input.tick));
+                    if input.client != client {
+                        refuse(
+                            client,
+                            here,
+                            RejectReason::NotOwner,
+                            format!("input names client {} but was sent on client {client}'s key", input.client),
+                        );
+                        continue;
+                    }
+                    if let Err(e) = input.validate() {
+                        refuse(client, here, e.reject_reason(), e.to_string());
+                        continue;
+                    }
+                    if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) =
+                        tx.try_send(Ingress::Input { input, encoding })
+                    {
+                        refuse(
+                            client,
+                            here,
+                            RejectReason::QueueFull,
+                            "the server's ingress queue is full; resend later".into(),
+                        );
+                    }
                 }
             })
             .wait()

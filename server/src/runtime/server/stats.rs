@@ -59,6 +59,7 @@ impl TickLoop {
             rollback_depth_max: self.period_depth,
             inputs_accepted: self.summary.inputs_accepted,
             inputs_rejected: rejected.clone(),
+            inputs_repeated: self.summary.inputs_repeated,
             events_per_s: self.period_events as f64,
             queue_depth_max: self.period_queue_max,
             tick_ms,

@@ -22,6 +22,8 @@ pub struct Summary {
     pub inputs_accepted: u64,
     /// Inputs rejected, by reason.
     pub inputs_rejected: BTreeMap<String, u64>,
+    /// Inputs skipped as repeats of accepted ones (redundant copies, resends).
+    pub inputs_repeated: u64,
     /// Inputs that reached the tick thread but were dropped inside the server (never: kept to
     /// prove it).
     pub inputs_lost: u64,
@@ -88,8 +90,8 @@ impl std::fmt::Display for Summary {
         )?;
         writeln!(
             f,
-            "clients {}, inputs accepted {}, lost inside the server {}",
-            self.clients, self.inputs_accepted, self.inputs_lost
+            "clients {}, inputs accepted {} (repeats skipped {}), lost inside the server {}",
+            self.clients, self.inputs_accepted, self.inputs_repeated, self.inputs_lost
         )?;
         let rejected: Vec<String> = self.inputs_rejected.iter().map(|(k, v)| format!("{k} {v}")).collect();
         writeln!(f, "inputs rejected: {}", if rejected.is_empty() { "none".into() } else { rejected.join(", ") })?;

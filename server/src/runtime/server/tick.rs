@@ -15,7 +15,7 @@ use impact_core::scene::{avatar_position, AvatarRule, Scene};
 use impact_core::sim::{Plan, SystemAction};
 use impact_protocol::{
     encode, keys, Admitted, ClientId, CollisionEvent, Encoding, EntityId, EventBatch, InputAck, InputReject,
-    LoggedInput, RejectReason, ServerMessage, Tick, Welcome, WorldId,
+    LoggedInput, RejectReason, ServerMessage, Tick, TimePing, TimePong, Welcome, WorldId,
 };
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -351,9 +351,22 @@ impl TickLoop {
             c.tokens = (c.tokens + per_tick).min(f64::from(self.opts.inputs_per_client_per_s));
         }
         let mut queued = 0u32;
-        while let Ok(Ingress { input, encoding }) = ingress.try_recv() {
+        while let Ok(item) = ingress.try_recv() {
             queued += 1;
+            let (input, encoding) = match item {
+                Ingress::Input { input, encoding } => (input, encoding),
+                Ingress::Ping { ping, encoding } => {
+                    self.pong(ping, encoding);
+                    continue;
+                }
+            };
             let (client, seq, tick) = (input.client, input.seq, input.tick);
+            if self.session.already_accepted(client, seq) {
+                // A redundant copy or a resend: it applied once, it is not applied again, and it
+                // is no reject either (PROTOCOL.md, "Redundancy").
+                self.summary.inputs_repeated += 1;
+                continue;
+            }
             if !self.clients.contains_key(&client) {
                 if self.clients.len() >= self.opts.max_clients {
                     // Every client costs a little state until its grace ends: an input from yet
@@ -428,6 +441,20 @@ impl TickLoop {
             }
         }
         self.period_queue_max = self.period_queue_max.max(queued);
+    }
+
+    /// Answers a time-sync probe from a present client with the current tick; a probe costs one
+    /// of the client's input tokens (so probes cannot flood the egress queue), and one from a
+    /// client the server does not know, or out of tokens, is dropped (the client probes again).
+    fn pong(&mut self, ping: TimePing, encoding: Encoding) {
+        let Some(state) = self.clients.get_mut(&ping.client) else { return };
+        if state.tokens < 1.0 {
+            return;
+        }
+        state.tokens -= 1.0;
+        let pong = ServerMessage::Pong(TimePong { client: ping.client, id: ping.id, server_tick: self.session.now() });
+        let key = state.ack_key.clone();
+        self.put(key, &pong, encoding);
     }
 
     /// Publishes what this tick admitted (a standby re-applies it if this process dies before

@@ -1,0 +1,587 @@
+//! The session: one client's side of the protocol as a state machine. A transport feeds it what
+//! arrived ([`Session::receive`]) and sends what it gives ([`Session::poll_transmit`]); the game
+//! gives it actions ([`Session::input`]) and reads its views each frame. Nothing here does I/O or
+//! reads a clock: every call takes the local instant.
+//!
+//! Its life (PROTOCOL.md, "Joining" and "Time sync"):
+//!
+//! 1. **Joining**: the transport declared the client's presence; the session waits for its
+//!    [`Welcome`] (its avatar, the tick rate, the window, the seq to resume from).
+//! 2. **Syncing**: it probes the server's clock ([`ClientMessage::Ping`]), one probe at a time,
+//!    [`SYNC_PROBES`] answers or [`SYNC_TIMEOUT`] at most. The answer that came back soonest
+//!    anchors the clock (NTP's minimum-delay sample), the slowest round trip sets the first lead
+//!    (so the first inputs are on time, not a round trip late until an ack recommends a lead).
+//! 3. **Playing**: inputs are stamped ahead by the lead the acks recommend, numbered, and sent
+//!    with up to [`SessionConfig::redundancy`] unanswered inputs before them in one
+//!    [`ClientMessage::Inputs`] (one lost message loses no input; the server applies each seq
+//!    once and skips repeats without an answer).
+//!
+//! A second welcome (the session reconnected within the server's grace period) resumes: the
+//! inputs the server says it accepted are dropped from the resend set, the seqs go on from the
+//! server's `next_seq`, and the clock is re-anchored.
+//!
+//! Every buffer is bounded: [`Outbox::DEFAULT_CAPACITY`] inputs awaiting an answer,
+//! [`SessionConfig::redundancy`] inputs for resending, [`MAX_OUTGOING`] messages not yet taken
+//! by the transport, [`MAX_RAY_RESULTS`] ray results not yet taken by the game, and the views'
+//! own bounds ([`crate::events::MAX_TICKS`], [`RemoteConfig`]).
+
+use crate::clock::Clock;
+use crate::events::EventView;
+use crate::inputs::{Outbox, Sent};
+use crate::remote::{DrawnBody, RemoteConfig, RemoteWorld};
+use impact_protocol::limits::{MAX_ACTIONS_PER_INPUT, MAX_INPUTS_PER_MESSAGE};
+use impact_protocol::{
+    Action, ClientId, ClientInput, ClientMessage, EntityId, InputBatch, RayResult, RejectReason, ServerMessage, Tick,
+    TimePing, Welcome,
+};
+use std::collections::{BTreeMap, VecDeque};
+use std::time::{Duration, Instant};
+
+/// Round trips measured before play: five, as a few NTP polls pick their best from eight.
+pub const SYNC_PROBES: usize = 5;
+
+/// The longest the sync waits for its probes (a server that does not answer them, or a lossy
+/// link): then play starts with what it has, or with the acks' lead alone.
+pub const SYNC_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// A probe unanswered this long is taken as lost, and the next one is sent.
+pub const PROBE_TIMEOUT: Duration = Duration::from_millis(250);
+
+/// Messages held for the transport at most; past it the oldest is dropped and counted (a
+/// transport that stopped taking them).
+pub const MAX_OUTGOING: usize = 256;
+
+/// Ray results held for the game at most; past it the oldest is dropped.
+pub const MAX_RAY_RESULTS: usize = 256;
+
+/// How a session behaves.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SessionConfig {
+    /// The client id (the `{client}` of its keys).
+    pub client: ClientId,
+    /// Stamp inputs ahead of the server by the recommended lead (default), or with the tick the
+    /// client sees (every input a round trip late; the server rolls back for each).
+    pub ahead: bool,
+    /// Unanswered inputs sent again before each new one (default 3, at most
+    /// `MAX_INPUTS_PER_MESSAGE - 1`; 0 turns redundancy off). Copies are only added while the
+    /// message's actions stay within `MAX_ACTIONS_PER_INPUT`, and only for inputs the server can
+    /// still accept (not older than its window).
+    pub redundancy: usize,
+    /// How far behind the server's present remote bodies are drawn, seconds (default 0.1).
+    pub interpolation_delay_s: f64,
+}
+
+impl SessionConfig {
+    /// The defaults for client `client`.
+    pub fn new(client: ClientId) -> SessionConfig {
+        SessionConfig { client, ahead: true, redundancy: MAX_INPUTS_PER_MESSAGE - 1, interpolation_delay_s: 0.1 }
+    }
+}
+
+/// Where the session is in its life (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Status {
+    /// Waiting for the welcome.
+    Joining,
+    /// Measuring the round trip.
+    Syncing,
+    /// Ready: inputs are stamped on time.
+    Playing,
+}
+
+/// Why [`Session::input`] refused actions.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum InputError {
+    /// No welcome yet: the session knows neither the server's tick nor its rate.
+    NotJoined,
+    /// More actions than one input may carry.
+    TooManyActions {
+        /// How many were given.
+        count: usize,
+    },
+}
+
+impl std::fmt::Display for InputError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            InputError::NotJoined => write!(f, "not joined yet: wait for the welcome (Status::Playing)"),
+            InputError::TooManyActions { count } => {
+                write!(f, "{count} actions in one input; at most {MAX_ACTIONS_PER_INPUT}")
+            }
+        }
+    }
+}
+
+impl std::error::Error for InputError {}
+
+/// What a session counted.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SessionStats {
+    /// Welcomes received (more than one: the session reconnected).
+    pub welcomes: u64,
+    /// Inputs given to the transport (each once, however many times it is carried).
+    pub inputs_sent: u64,
+    /// Inputs acknowledged.
+    pub inputs_acked: u64,
+    /// Acked inputs that arrived after their tick had begun (`margin_ticks < 0`): the server
+    /// rolled back for each.
+    pub late_acks: u64,
+    /// Inputs refused, by reason (rejects that name no seq included).
+    pub rejects: BTreeMap<RejectReason, u64>,
+    /// Acks and rejects that matched no input awaiting an answer.
+    pub unmatched_answers: u64,
+    /// Inputs sent again as redundant copies.
+    pub copies_sent: u64,
+    /// Provisional events received.
+    pub events: u64,
+    /// Correction batches applied.
+    pub corrections: u64,
+    /// Ray results received, and how many hit something.
+    pub ray_results: u64,
+    /// Ray results that hit something.
+    pub hits: u64,
+    /// State frames received.
+    pub state_frames: u64,
+    /// Round trips measured by the sync, and the shortest and longest, seconds.
+    pub sync_samples: u64,
+    /// Shortest sync round trip, seconds.
+    pub sync_rtt_min_s: f64,
+    /// Longest sync round trip, seconds.
+    pub sync_rtt_max_s: f64,
+    /// Times the clock re-anchored on a tick far from its estimate.
+    pub clock_resyncs: u64,
+    /// Messages the transport could not decode (it says so with [`Session::malformed`]).
+    pub malformed: u64,
+    /// Messages for another client, or of a kind a client does not use: skipped.
+    pub skipped: u64,
+    /// Outgoing messages dropped because the transport did not take them.
+    pub outgoing_dropped: u64,
+}
+
+/// One client's session (see the module docs).
+#[derive(Debug)]
+pub struct Session {
+    cfg: SessionConfig,
+    status: Status,
+    welcome: Option<Welcome>,
+    clock: Clock,
+    outbox: Outbox,
+    events: EventView,
+    remote: Option<RemoteWorld>,
+    /// The probe in flight: its id and when it was sent.
+    probe: Option<(u32, Instant)>,
+    next_probe: u32,
+    /// Sync answers: round trip, the tick named, when it arrived.
+    samples: Vec<(Duration, Tick, Instant)>,
+    sync_started: Option<Instant>,
+    /// Inputs not yet answered, oldest first, for resending (at most `cfg.redundancy`).
+    resend: VecDeque<ClientInput>,
+    outgoing: VecDeque<ClientMessage>,
+    rays: VecDeque<RayResult>,
+    stats: SessionStats,
+}
+
+impl Session {
+    /// A session that has not joined yet: declare the client's presence (the transport does),
+    /// and feed it what arrives.
+    pub fn new(cfg: SessionConfig) -> Session {
+        Session {
+            cfg,
+            status: Status::Joining,
+            welcome: None,
+            clock: Clock::new(),
+            outbox: Outbox::default(),
+            events: EventView::default(),
+            remote: None,
+            probe: None,
+            next_probe: 0,
+            samples: Vec::new(),
+            sync_started: None,
+            resend: VecDeque::new(),
+            outgoing: VecDeque::new(),
+            rays: VecDeque::new(),
+            stats: SessionStats::default(),
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &SessionConfig {
+        &self.cfg
+    }
+
+    /// Where the session is.
+    pub fn status(&self) -> Status {
+        self.status
+    }
+
+    /// The last welcome: the avatar, tick rate, window and lead bounds.
+    pub fn welcome(&self) -> Option<&Welcome> {
+        self.welcome.as_ref()
+    }
+
+    /// The client's avatar, once welcomed (if the scene spawns one).
+    pub fn avatar(&self) -> Option<EntityId> {
+        self.welcome.as_ref().and_then(|w| w.avatar)
+    }
+
+    /// The client's estimate of the server's clock.
+    pub fn clock(&self) -> &Clock {
+        &self.clock
+    }
+
+    /// The event view: provisional events with corrections applied, confirmed ticks compared.
+    pub fn events(&self) -> &EventView {
+        &self.events
+    }
+
+    /// The remote world (once welcomed: it needs the tick rate).
+    pub fn remote(&self) -> Option<&RemoteWorld> {
+        self.remote.as_ref()
+    }
+
+    /// The tick remote bodies are drawn at, at `now`: the server's present as the clock sees it,
+    /// less the interpolation delay.
+    pub fn render_tick(&self, now: Instant) -> Option<f64> {
+        let delay = self.remote.as_ref()?.config().delay_ticks();
+        Some(self.clock.server_ticks(now)? - delay)
+    }
+
+    /// Every remote body as drawn at `now`, into `out` (cleared first; empty before the welcome).
+    pub fn draw_remote(&self, now: Instant, out: &mut Vec<DrawnBody>) {
+        out.clear();
+        if let (Some(r), Some(t)) = (&self.remote, self.render_tick(now)) {
+            r.draw(t, out);
+        }
+    }
+
+    /// The ray results received since the last call, oldest first.
+    pub fn take_ray_results(&mut self) -> impl Iterator<Item = RayResult> + '_ {
+        self.rays.drain(..)
+    }
+
+    /// What the session counted.
+    pub fn stats(&self) -> &SessionStats {
+        &self.stats
+    }
+
+    /// Inputs awaiting an answer.
+    pub fn pending_inputs(&self) -> usize {
+        self.outbox.pending()
+    }
+
+    /// The transport received something it could not decode (counted, then skipped).
+    pub fn malformed(&mut self) {
+        self.stats.malformed += 1;
+    }
+
+    /// A message from the server arrived at `now`.
+    pub fn receive(&mut self, msg: ServerMessage, now: Instant) {
+        let me = self.cfg.client;
+        match msg {
+            ServerMessage::Welcome(w) if w.client == me => self.welcomed(w, now),
+            ServerMessage::Pong(p) if p.client == me => {
+                let Some((id, sent)) = self.probe else { return };
+                if id != p.id || self.status != Status::Syncing {
+                    return;
+                }
+                self.probe = None;
+                self.samples.push((now.saturating_duration_since(sent), p.server_tick, now));
+                if self.samples.len() >= SYNC_PROBES {
+                    self.start_playing();
+                }
+            }
+            ServerMessage::Ack(a) if a.client == me => {
+                self.observe(a.server_tick, now);
+                self.clock.recommend(a.lead_ticks);
+                self.stats.late_acks += u64::from(a.margin_ticks < 0);
+                self.resend.retain(|i| i.seq != a.seq);
+                if self.outbox.answered(a.seq).is_some() {
+                    self.stats.inputs_acked += 1;
+                } else {
+                    self.stats.unmatched_answers += 1;
+                }
+            }
+            ServerMessage::Reject(j) if j.client == me => {
+                *self.stats.rejects.entry(j.reason).or_insert(0) += 1;
+                let Some(seq) = j.seq else { return };
+                self.resend.retain(|i| i.seq != seq);
+                match self.outbox.answered(seq) {
+                    Some(Sent { view: Some(view), .. }) => {
+                        if let (RejectReason::Future, Some(t), Some(n)) = (j.reason, j.tick, j.newest_tick) {
+                            self.clock.back_off(t, view, n);
+                        }
+                    }
+                    Some(_) => {}
+                    // An accepted input whose entity went away before its tick was re-simulated
+                    // is told so by a second message (PROTOCOL.md): not unmatched.
+                    None if matches!(j.reason, RejectReason::UnknownEntity | RejectReason::NotOwner) => {}
+                    None => self.stats.unmatched_answers += 1,
+                }
+            }
+            ServerMessage::Events(b) => {
+                self.observe(b.tick, now);
+                self.stats.events += b.events.len() as u64;
+                self.events.events(&b);
+            }
+            ServerMessage::Corrections(c) => {
+                self.stats.corrections += 1;
+                self.events.correct(&c);
+            }
+            ServerMessage::Confirmed(b) => {
+                self.events.confirm(&b);
+            }
+            ServerMessage::RayResult(r) if r.client == me => {
+                self.stats.ray_results += 1;
+                self.stats.hits += u64::from(r.hit.is_some());
+                if self.rays.len() >= MAX_RAY_RESULTS {
+                    self.rays.pop_front();
+                }
+                self.rays.push_back(r);
+            }
+            ServerMessage::State(f) => {
+                self.stats.state_frames += 1;
+                self.observe(f.tick, now);
+                if let Some(r) = self.remote.as_mut() {
+                    r.apply(&f);
+                }
+            }
+            ServerMessage::Stats(s) => self.observe(s.tick, now),
+            _ => self.stats.skipped += 1,
+        }
+    }
+
+    fn observe(&mut self, tick: Tick, now: Instant) {
+        self.stats.clock_resyncs += u64::from(self.clock.observe(tick, now));
+    }
+
+    fn welcomed(&mut self, w: Welcome, now: Instant) {
+        self.stats.welcomes += 1;
+        self.clock.anchor(w.tick, w.tick_hz, now);
+        if self.remote.as_ref().is_none_or(|r| r.config().tick_hz != w.tick_hz) {
+            let cfg = RemoteConfig { delay_s: self.cfg.interpolation_delay_s, ..RemoteConfig::new(w.tick_hz) };
+            self.remote = Some(RemoteWorld::new(cfg));
+        }
+        // Seqs below the server's next_seq were accepted (their acks were lost with the old
+        // connection): nothing to resend. Ours go on from wherever is further.
+        self.resend.retain(|i| i.seq >= w.next_seq);
+        self.outbox.resume_from(w.next_seq);
+        if self.status == Status::Joining {
+            self.status = Status::Syncing;
+            self.sync_started = Some(now);
+        }
+        self.welcome = Some(w);
+    }
+
+    /// Ends the sync: the soonest answer anchors the clock, the slowest round trip (in ticks,
+    /// plus one) is the first lead, as the server's own recommendation is its largest recent
+    /// delay plus one.
+    fn start_playing(&mut self) {
+        self.status = Status::Playing;
+        self.probe = None;
+        let Some(hz) = self.clock.tick_hz() else { return };
+        let Some(&(_, tick, at)) = self.samples.iter().min_by_key(|s| s.0) else { return };
+        let slowest = self.samples.iter().map(|s| s.0).max().unwrap_or_default();
+        let fastest = self.samples.iter().map(|s| s.0).min().unwrap_or_default();
+        self.stats.sync_samples = self.samples.len() as u64;
+        self.stats.sync_rtt_min_s = fastest.as_secs_f64();
+        self.stats.sync_rtt_max_s = slowest.as_secs_f64();
+        self.clock.anchor(tick, hz, at);
+        self.clock.recommend((slowest.as_secs_f64() * f64::from(hz)).ceil() as u32 + 1);
+    }
+
+    /// Numbers and stamps `actions` as the client's next input and queues it for the transport
+    /// (with the unanswered inputs before it). Returns its seq.
+    pub fn input(&mut self, actions: Vec<Action>, now: Instant) -> Result<u32, InputError> {
+        if actions.len() > MAX_ACTIONS_PER_INPUT {
+            return Err(InputError::TooManyActions { count: actions.len() });
+        }
+        let (tick, view) = self.clock.stamp(self.cfg.ahead, now).ok_or(InputError::NotJoined)?;
+        let seq = self.outbox.next_seq();
+        // Behind, the view tick is the input's own: saying so again would change nothing.
+        let view_tick = self.cfg.ahead.then_some(view);
+        let input = ClientInput { client: self.cfg.client, seq, tick, view_tick, actions };
+        self.outbox.sent(seq, Sent { at: now, tick, view: view_tick });
+        self.stats.inputs_sent += 1;
+        // Copies, newest first, while the server can still accept them and the actions fit.
+        let oldest = self.welcome.as_ref().map_or(0, |w| view.0.saturating_sub(w.window_ticks));
+        let mut actions = input.actions.len();
+        let mut inputs = Vec::new();
+        for old in self.resend.iter().rev().take(self.cfg.redundancy.min(MAX_INPUTS_PER_MESSAGE - 1)) {
+            if old.tick.0 < oldest || actions + old.actions.len() > MAX_ACTIONS_PER_INPUT {
+                break;
+            }
+            actions += old.actions.len();
+            inputs.push(old.clone());
+        }
+        self.stats.copies_sent += inputs.len() as u64;
+        inputs.reverse();
+        let msg = if inputs.is_empty() {
+            ClientMessage::Input(input.clone())
+        } else {
+            inputs.push(input.clone());
+            ClientMessage::Inputs(InputBatch { client: self.cfg.client, inputs })
+        };
+        if self.cfg.redundancy > 0 {
+            self.resend.push_back(input);
+            while self.resend.len() > self.cfg.redundancy {
+                self.resend.pop_front();
+            }
+        }
+        self.push(msg);
+        Ok(seq)
+    }
+
+    fn push(&mut self, msg: ClientMessage) {
+        if self.outgoing.len() >= MAX_OUTGOING {
+            self.outgoing.pop_front();
+            self.stats.outgoing_dropped += 1;
+        }
+        self.outgoing.push_back(msg);
+    }
+
+    /// The next message to send at `now`, if any: the sync's probes, then inputs in order.
+    /// Call it until it returns `None` each frame.
+    pub fn poll_transmit(&mut self, now: Instant) -> Option<ClientMessage> {
+        if self.status == Status::Syncing {
+            let started = *self.sync_started.get_or_insert(now);
+            if now.saturating_duration_since(started) >= SYNC_TIMEOUT {
+                self.start_playing();
+            } else if self.probe.is_none_or(|(_, at)| now.saturating_duration_since(at) >= PROBE_TIMEOUT) {
+                let id = self.next_probe;
+                self.next_probe = self.next_probe.wrapping_add(1);
+                self.probe = Some((id, now));
+                return Some(ClientMessage::Ping(TimePing { client: self.cfg.client, id }));
+            }
+        }
+        self.outgoing.pop_front()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use impact_protocol::{InputAck, TimePong};
+
+    fn welcome(next_seq: u32) -> ServerMessage {
+        ServerMessage::Welcome(Welcome {
+            client: ClientId(7),
+            avatar: Some(EntityId(3)),
+            tick: Tick(100),
+            tick_hz: 64,
+            window_ticks: 16,
+            input_lead_ticks: 8,
+            max_rewind_ticks: 16,
+            next_seq,
+        })
+    }
+
+    fn walk() -> Vec<Action> {
+        vec![Action::SetVelocity { entity: EntityId(3), velocity: [1.0, 0.0, 0.0] }]
+    }
+
+    fn ack(seq: u32, server_tick: u32, lead: u32) -> ServerMessage {
+        ServerMessage::Ack(InputAck {
+            client: ClientId(7),
+            seq,
+            tick: Tick(server_tick),
+            applied_tick: Tick(server_tick),
+            server_tick: Tick(server_tick),
+            margin_ticks: 0,
+            lead_ticks: lead,
+        })
+    }
+
+    /// Joins, probes one at a time, and plays once five answers came: the first lead is the
+    /// slowest round trip in ticks plus one, so the first input is stamped ahead.
+    #[test]
+    fn the_sync_sets_the_first_lead_before_any_input() {
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig::new(ClientId(7)));
+        assert_eq!(s.input(walk(), t0), Err(InputError::NotJoined));
+        assert_eq!(s.poll_transmit(t0), None, "nothing before the welcome");
+        s.receive(welcome(0), t0);
+        assert_eq!(s.status(), Status::Syncing);
+        let mut t = t0;
+        for k in 0..SYNC_PROBES as u32 {
+            let Some(ClientMessage::Ping(p)) = s.poll_transmit(t) else { panic!("a probe") };
+            assert_eq!(p.id, k);
+            assert_eq!(s.poll_transmit(t), None, "one probe in flight");
+            // Round trips of 40 to 80 ms; the server is 3 ticks on when it answers.
+            let rtt = Duration::from_millis(40 + 10 * u64::from(k));
+            t += rtt;
+            s.receive(ServerMessage::Pong(TimePong { client: ClientId(7), id: p.id, server_tick: Tick(103 + k) }), t);
+        }
+        assert_eq!(s.status(), Status::Playing);
+        assert_eq!(s.stats().sync_samples, 5);
+        // 80 ms at 64 Hz is 5.12 ticks: a lead of 7.
+        assert_eq!(s.clock().lead(), Some(7.0));
+        let seq = s.input(walk(), t).unwrap();
+        assert_eq!(seq, 1);
+        let Some(ClientMessage::Input(i)) = s.poll_transmit(t) else { panic!("the input") };
+        assert_eq!(i.tick.0 - i.view_tick.unwrap().0, 7);
+    }
+
+    /// A server that never answers probes: play starts after the timeout, with no lead until an
+    /// ack recommends one.
+    #[test]
+    fn a_silent_server_ends_the_sync_by_timeout() {
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig::new(ClientId(7)));
+        s.receive(welcome(0), t0);
+        let mut probes = 0;
+        let mut t = t0;
+        while s.status() == Status::Syncing {
+            probes += u32::from(matches!(s.poll_transmit(t), Some(ClientMessage::Ping(_))));
+            t += Duration::from_millis(10);
+        }
+        assert_eq!(probes, 8, "one probe every 250 ms for 2 s");
+        assert_eq!(s.clock().lead(), None);
+    }
+
+    /// Each input carries the unanswered ones before it (at most three); an ack removes one from
+    /// the copies; a second welcome after a reconnect resumes the seqs and drops what the server
+    /// accepted.
+    #[test]
+    fn inputs_carry_the_unanswered_ones_and_resume_after_a_reconnect() {
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig { redundancy: 3, ..SessionConfig::new(ClientId(7)) });
+        s.receive(welcome(0), t0);
+        let t = t0 + SYNC_TIMEOUT;
+        while s.poll_transmit(t).is_some() {}
+        let seqs = |m: ClientMessage| match m {
+            ClientMessage::Input(i) => vec![i.seq],
+            ClientMessage::Inputs(b) => b.inputs.iter().map(|i| i.seq).collect(),
+            ClientMessage::Ping(_) => vec![],
+        };
+        let mut sent = Vec::new();
+        for _ in 0..5 {
+            s.input(walk(), t).unwrap();
+            sent.push(seqs(s.poll_transmit(t).unwrap()));
+        }
+        assert_eq!(sent, [vec![1], vec![1, 2], vec![1, 2, 3], vec![1, 2, 3, 4], vec![2, 3, 4, 5]]);
+        s.receive(ack(3, 100, 4), t);
+        s.input(walk(), t).unwrap();
+        assert_eq!(seqs(s.poll_transmit(t).unwrap()), [4, 5, 6], "3 was answered; 2 left the copies");
+        assert_eq!(s.stats().inputs_acked, 1);
+        // Reconnected: the server accepted up to 5.
+        s.receive(welcome(6), t);
+        s.input(walk(), t).unwrap();
+        assert_eq!(seqs(s.poll_transmit(t).unwrap()), [6, 7]);
+        // A server that remembers more than the client sent: the client's seqs jump past it.
+        s.receive(welcome(20), t);
+        assert_eq!(s.input(walk(), t), Ok(20));
+    }
+
+    /// Nothing for another client changes the session; an unknown kind is skipped and counted.
+    #[test]
+    fn messages_for_others_are_skipped() {
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig::new(ClientId(8)));
+        s.receive(welcome(0), t0);
+        assert_eq!(s.status(), Status::Joining);
+        assert_eq!(s.stats().skipped, 1);
+        s.receive(ack(1, 100, 3), t0);
+        assert_eq!(s.stats().skipped, 2);
+        assert_eq!(s.stats().unmatched_answers, 0);
+    }
+}

@@ -1,0 +1,347 @@
+//! The Zenoh transport: a [`Session`] driven over Zenoh, as a peer or through a router, with a
+//! user and password where the server asks for them. The one module here that does I/O (behind
+//! the default `zenoh` feature); a WebSocket transport or another language's port drives the same
+//! [`Session`] the same way: feed [`Session::receive`], send [`Session::poll_transmit`].
+//!
+//! [`Connection::open`] opens a Zenoh session, finds the world's server and checks that it
+//! speaks this protocol version (a clear error if not), subscribes to the client's keys, and
+//! declares the client's presence, which makes the server spawn its avatar and send its welcome.
+//! Each frame, [`Connection::pump`] hands the session what arrived and sends what it gives.
+//!
+//! Received messages are decoded in Zenoh's callback and queued for the next pump, at most
+//! [`INBOX_CAPACITY`] (past it they are dropped and counted in [`Connection::dropped`]); a
+//! message that does not decode is counted by the session ([`Session::malformed`]) and skipped.
+//! A dropped link is Zenoh's to restore: the session retries its endpoints with back-off (100 ms
+//! doubling to 2 s) and re-declares the presence and subscriptions; the server welcomes the
+//! client again within its grace period and the session resumes its seqs.
+
+use crate::session::Session;
+use ::zenoh::Wait;
+use impact_protocol::limits::MAX_SERVER_MESSAGE_BYTES;
+use impact_protocol::{keys, ClientId, ClientMessage, Encoding, ServerMessage, WorldId};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// Messages queued between Zenoh's callbacks and the next [`Connection::pump`], at most: a
+/// second of a busy client's messages at a 60 Hz frame rate many times over.
+pub const INBOX_CAPACITY: usize = 16_384;
+
+/// A Zenoh user name and password (for a server started with `--users`).
+#[derive(Clone, Debug)]
+pub struct Credentials {
+    /// User name.
+    pub user: String,
+    /// Password.
+    pub password: String,
+}
+
+/// How the client's Zenoh session joins the network.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Mode {
+    /// A peer: connects to the endpoints given and, through gossip, directly to the peers they
+    /// know (the servers): the default for a server without a router.
+    #[default]
+    Peer,
+    /// A client: talks only to the router (or peer) it connects to, as game clients behind a
+    /// zenohd router do.
+    Client,
+}
+
+/// Why a connection could not be made or went wrong.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum TransportError {
+    /// Zenoh refused the configuration or could not open the session (no endpoint reachable,
+    /// credentials refused).
+    Open(String),
+    /// No server owns the world: nothing answered for its liveliness token in time.
+    NoServer {
+        /// The world.
+        world: String,
+        /// How long the client looked.
+        waited: Duration,
+    },
+    /// A server owns the world but speaks another protocol version.
+    VersionMismatch {
+        /// The world.
+        world: String,
+        /// The versions its servers speak.
+        server: Vec<String>,
+        /// The version this client speaks.
+        client: &'static str,
+    },
+    /// Declaring a subscription, the presence token, or a put failed.
+    Zenoh(String),
+}
+
+impl std::fmt::Display for TransportError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            TransportError::Open(e) => write!(f, "{e}"),
+            TransportError::NoServer { world, waited } => write!(
+                f,
+                "no impact server owns world {world:?}: nothing answered for impact/*/{world}/server within {:.1} s \
+                 (is impact-server running with --world {world}, and reachable from the endpoints given?)",
+                waited.as_secs_f64()
+            ),
+            TransportError::VersionMismatch { world, server, client } => write!(
+                f,
+                "the server of world {world:?} speaks protocol {}, this client speaks {client}: upgrade the one \
+                 that is older",
+                server.join(", ")
+            ),
+            TransportError::Zenoh(e) => write!(f, "zenoh: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for TransportError {}
+
+/// Opens a Zenoh session connected to `connect` (or configured by the file `config`),
+/// authenticated as `creds` if given. Without a configuration file the session has multicast
+/// scouting off, listens nowhere, fails if it cannot reach every endpoint within 10 s (no server
+/// there, or credentials refused), and later retries a lost endpoint with back-off.
+pub fn open_session(
+    connect: &[String],
+    config: Option<&std::path::Path>,
+    creds: Option<&Credentials>,
+    mode: Mode,
+) -> Result<::zenoh::Session, TransportError> {
+    let bad = |e: ::zenoh::Error| TransportError::Open(format!("zenoh configuration: {e}"));
+    let mut c = match config {
+        Some(p) => ::zenoh::Config::from_file(p).map_err(|e| TransportError::Open(format!("{}: {e}", p.display())))?,
+        None => {
+            let mut c = ::zenoh::Config::default();
+            let mode = if mode == Mode::Client { "\"client\"" } else { "\"peer\"" };
+            c.insert_json5("mode", mode).map_err(bad)?;
+            c.insert_json5("scouting/multicast/enabled", "false").map_err(bad)?;
+            c.insert_json5("listen/endpoints", "[]").map_err(bad)?;
+            c.insert_json5("connect/timeout_ms", "10000").map_err(bad)?;
+            c.insert_json5("connect/exit_on_failure", "true").map_err(bad)?;
+            c.insert_json5(
+                "connect/retry",
+                r#"{"period_init_ms": 100, "period_max_ms": 2000, "period_increase_factor": 2}"#,
+            )
+            .map_err(bad)?;
+            c
+        }
+    };
+    if !connect.is_empty() {
+        let list = format!("[{}]", connect.iter().map(|e| format!("{e:?}")).collect::<Vec<_>>().join(", "));
+        c.insert_json5("connect/endpoints", &list).map_err(bad)?;
+    }
+    if let Some(k) = creds {
+        c.insert_json5("transport/auth/usrpwd/user", &format!("{:?}", k.user)).map_err(bad)?;
+        c.insert_json5("transport/auth/usrpwd/password", &format!("{:?}", k.password)).map_err(bad)?;
+    }
+    let who = creds.map_or(String::new(), |k| format!(" as user {:?}", k.user));
+    ::zenoh::open(c)
+        .wait()
+        .map_err(|e| TransportError::Open(format!("opening a zenoh session to {}{who}: {e}", connect.join(", "))))
+}
+
+/// Decodes a sample's payload by its encoding tag (MessagePack when untagged).
+pub fn decode_server(sample: &::zenoh::sample::Sample) -> Result<ServerMessage, impact_protocol::ProtocolError> {
+    let tag = sample.encoding().to_string();
+    let enc = Encoding::from_zenoh_tag(&tag).unwrap_or_default();
+    impact_protocol::decode(&sample.payload().to_bytes(), enc, MAX_SERVER_MESSAGE_BYTES)
+}
+
+/// Where and how to connect.
+#[derive(Clone, Debug)]
+pub struct ConnectOptions {
+    /// Zenoh endpoints (`tcp/127.0.0.1:7447`): the server's, or a router's.
+    pub connect: Vec<String>,
+    /// Peer or client mode.
+    pub mode: Mode,
+    /// A Zenoh configuration file instead of the settings above.
+    pub config: Option<PathBuf>,
+    /// User and password, for a server started with `--users`.
+    pub credentials: Option<Credentials>,
+    /// The world to join.
+    pub world: WorldId,
+    /// The client id.
+    pub client: ClientId,
+    /// Subscribe to the client's own state stream (`client/{id}/state`; the server must run with
+    /// `--state-hz`).
+    pub state: bool,
+    /// How inputs are encoded (MessagePack by default).
+    pub encoding: Encoding,
+    /// How long to look for the world's server before giving up (default 10 s).
+    pub find_server: Duration,
+}
+
+impl ConnectOptions {
+    /// Client `client` of world `world` through `connect`, with the defaults: a peer, its state
+    /// stream on, MessagePack, 10 s to find the server.
+    pub fn new(connect: Vec<String>, world: WorldId, client: ClientId) -> ConnectOptions {
+        ConnectOptions {
+            connect,
+            mode: Mode::Peer,
+            config: None,
+            credentials: None,
+            world,
+            client,
+            state: true,
+            encoding: Encoding::MsgPack,
+            find_server: Duration::from_secs(10),
+        }
+    }
+}
+
+/// What the callbacks queue: a message, or one that did not decode.
+#[derive(Debug)]
+enum Inbound {
+    Msg(ServerMessage, Instant),
+    Malformed,
+}
+
+/// A client's Zenoh side (see the module docs). Dropping it withdraws the presence.
+#[derive(Debug)]
+pub struct Connection {
+    session: ::zenoh::Session,
+    input_key: String,
+    encoding: Encoding,
+    inbox: Receiver<Inbound>,
+    dropped: Arc<AtomicU64>,
+    _subscribers: Vec<::zenoh::pubsub::Subscriber<()>>,
+    _token: ::zenoh::liveliness::LivelinessToken,
+}
+
+/// Looks for the world's server tokens at every protocol version, until `wait` passes: `Ok`
+/// when one speaks [`keys::VERSION`], the versions found otherwise.
+fn find_server(zs: &::zenoh::Session, world: &WorldId, wait: Duration) -> Result<(), TransportError> {
+    let started = Instant::now();
+    let any_version = format!("impact/*/{}/server", world.as_str());
+    loop {
+        let replies = zs
+            .liveliness()
+            .get(&any_version)
+            .timeout(Duration::from_secs(1))
+            .wait()
+            .map_err(|e| TransportError::Zenoh(format!("looking for the server: {e}")))?;
+        let mut versions = Vec::new();
+        while let Ok(reply) = replies.recv() {
+            if let Ok(sample) = reply.result() {
+                let v = sample.key_expr().as_str().split('/').nth(1).unwrap_or("").to_string();
+                if v == keys::VERSION {
+                    return Ok(());
+                }
+                if !versions.contains(&v) {
+                    versions.push(v);
+                }
+            }
+        }
+        if !versions.is_empty() {
+            return Err(TransportError::VersionMismatch {
+                world: world.as_str().to_string(),
+                server: versions,
+                client: keys::VERSION,
+            });
+        }
+        if started.elapsed() >= wait {
+            return Err(TransportError::NoServer { world: world.as_str().to_string(), waited: started.elapsed() });
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
+impl Connection {
+    /// Opens the Zenoh session, finds the world's server (checking its protocol version),
+    /// subscribes to the client's keys and declares its presence: the welcome follows.
+    pub fn open(opts: &ConnectOptions) -> Result<Connection, TransportError> {
+        let session = open_session(&opts.connect, opts.config.as_deref(), opts.credentials.as_ref(), opts.mode)?;
+        Connection::on(session, opts)
+    }
+
+    /// The same over a Zenoh session the caller opened.
+    pub fn on(session: ::zenoh::Session, opts: &ConnectOptions) -> Result<Connection, TransportError> {
+        find_server(&session, &opts.world, opts.find_server)?;
+        let (tx, inbox) = sync_channel(INBOX_CAPACITY);
+        let dropped = Arc::new(AtomicU64::new(0));
+        let (w, c) = (&opts.world, Some(opts.client));
+        let mut wanted = vec![keys::CLIENT_ACK.key(w, c), keys::CLIENT_EVENTS.key(w, c)];
+        if opts.state {
+            wanted.push(keys::CLIENT_STATE.key(w, c));
+        }
+        let mut subscribers = Vec::new();
+        for key in wanted {
+            let (tx, dropped): (SyncSender<Inbound>, _) = (tx.clone(), dropped.clone());
+            let sub = session
+                .declare_subscriber(key)
+                .callback(move |sample| {
+                    let item = match decode_server(&sample) {
+                        Ok(m) => Inbound::Msg(m, Instant::now()),
+                        Err(_) => Inbound::Malformed,
+                    };
+                    if let Err(TrySendError::Full(_)) = tx.try_send(item) {
+                        dropped.fetch_add(1, Relaxed);
+                    }
+                })
+                .wait()
+                .map_err(|e| TransportError::Zenoh(format!("subscribing: {e}")))?;
+            subscribers.push(sub);
+        }
+        // Last, so every subscription is in place when the welcome comes.
+        let token = session
+            .liveliness()
+            .declare_token(keys::PRESENCE.key(w, c))
+            .wait()
+            .map_err(|e| TransportError::Zenoh(format!("declaring the presence: {e}")))?;
+        Ok(Connection {
+            session,
+            input_key: keys::INPUT.key(w, c),
+            encoding: opts.encoding,
+            inbox,
+            dropped,
+            _subscribers: subscribers,
+            _token: token,
+        })
+    }
+
+    /// Hands `client` every message that arrived (at the instant it arrived), then sends what
+    /// it gives at `now`.
+    pub fn pump(&self, client: &mut Session, now: Instant) -> Result<(), TransportError> {
+        while let Ok(item) = self.inbox.try_recv() {
+            match item {
+                Inbound::Msg(m, at) => client.receive(m, at),
+                Inbound::Malformed => client.malformed(),
+            }
+        }
+        while let Some(msg) = client.poll_transmit(now) {
+            self.send(&msg)?;
+        }
+        Ok(())
+    }
+
+    /// Sends one message on the client's input key.
+    pub fn send(&self, msg: &ClientMessage) -> Result<(), TransportError> {
+        let bytes = impact_protocol::encode(msg, self.encoding).map_err(|e| TransportError::Zenoh(e.to_string()))?;
+        self.session
+            .put(&self.input_key, bytes)
+            .encoding(self.encoding.zenoh_tag())
+            .wait()
+            .map_err(|e| TransportError::Zenoh(format!("sending: {e}")))
+    }
+
+    /// Messages dropped because the inbox was full (the game stopped pumping).
+    pub fn dropped(&self) -> u64 {
+        self.dropped.load(Relaxed)
+    }
+
+    /// The Zenoh session, for what the game does beside the protocol (queries, say).
+    pub fn zenoh(&self) -> &::zenoh::Session {
+        &self.session
+    }
+
+    /// Withdraws the presence (the server removes the avatar after its grace period) and closes
+    /// the session.
+    pub fn close(self) {
+        let Connection { session, _subscribers, _token, .. } = self;
+        drop(_token);
+        drop(_subscribers);
+        let _ = session.close().wait();
+    }
+}

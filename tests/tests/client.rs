@@ -1,0 +1,118 @@
+//! The client library (`impact-client`) against a real server over Zenoh on loopback: it joins,
+//! measures its round trip before its first input, stamps inputs on time, carries unanswered
+//! inputs in each message so a lossy uplink loses none (and the server applies each once), and
+//! says clearly when no server, or a server of another protocol version, owns the world.
+
+mod common;
+
+use common::*;
+use impact_client::transport::{ConnectOptions, Connection, TransportError};
+use impact_client::{Session, SessionConfig, Status};
+use impact_core::scene::Scene;
+use impact_protocol::{Action, ClientId, ClientMessage, WorldId};
+use std::time::{Duration, Instant};
+use zenoh::Wait;
+
+fn options(ep: &str, client: u32) -> ConnectOptions {
+    ConnectOptions::new(vec![ep.to_string()], WorldId::new("arena").unwrap(), ClientId(client))
+}
+
+/// Pumps until the session plays (bounded).
+fn join(conn: &Connection, game: &mut Session) {
+    let by = Instant::now() + Duration::from_secs(10);
+    while game.status() != Status::Playing {
+        assert!(Instant::now() < by, "not playing within 10 s: {:?} {:?}", game.status(), game.stats());
+        conn.pump(game, Instant::now()).unwrap();
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// Plays `seconds`, an input every 50 ms; `copies` says how many times each outgoing message is
+/// really sent (0: lost on the way, 2: duplicated). Then waits up to 2 s for the answers owed.
+fn play(conn: &Connection, game: &mut Session, seconds: f64, mut copies: impl FnMut(&ClientMessage) -> u32) {
+    let avatar = game.avatar().expect("arena spawns avatars");
+    let start = Instant::now();
+    let mut next = start;
+    while start.elapsed().as_secs_f64() < seconds
+        || (game.pending_inputs() > 0 && start.elapsed().as_secs_f64() < seconds + 2.0)
+    {
+        let now = Instant::now();
+        conn.pump(game, now).unwrap();
+        if now >= next && start.elapsed().as_secs_f64() < seconds {
+            next += Duration::from_millis(50);
+            let v = [2.0 * (now - start).as_secs_f64().cos(), 0.0, 1.0];
+            game.input(vec![Action::SetVelocity { entity: avatar, velocity: v }], now).unwrap();
+        }
+        while let Some(m) = game.poll_transmit(now) {
+            for _ in 0..copies(&m) {
+                conn.send(&m).unwrap();
+            }
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+#[test]
+fn a_client_syncs_plays_on_time_and_loses_no_input_to_a_lossy_uplink() {
+    let (server, ep) = server(Scene::load(&Scene::bundled_path("arena")).unwrap(), |_| {});
+    let conn = Connection::open(&options(&ep, 1)).expect("connects");
+    let mut game = Session::new(SessionConfig::new(ClientId(1)));
+    join(&conn, &mut game);
+    let s = game.stats().clone();
+    assert!(s.sync_samples >= 3, "the round trip was measured before play: {s:?}");
+    assert!(game.clock().lead().is_some_and(|l| l >= 1.0), "a lead before the first ack");
+
+    // Every input arrives on time from the first on: the lead came from the sync.
+    play(&conn, &mut game, 2.0, |_| 1);
+    let s = game.stats().clone();
+    assert!(s.inputs_sent >= 35, "{s:?}");
+    assert_eq!((s.inputs_acked, s.late_acks, s.rejects.len()), (s.inputs_sent, 0, 0), "{s:?}");
+
+    // Half the messages lost: each input rides in up to four, so every one still arrives, once.
+    let mut k = 0u32;
+    play(&conn, &mut game, 2.0, |m| {
+        k += 1;
+        u32::from(matches!(m, ClientMessage::Ping(_)) || k % 2 == 0)
+    });
+    let t = game.stats().clone();
+    let sent = t.inputs_sent - s.inputs_sent;
+    assert!(t.copies_sent > s.copies_sent, "{t:?}");
+    assert_eq!(t.inputs_acked - s.inputs_acked, sent, "every input acked: {t:?}");
+
+    // Every message twice (a resend after a reconnect looks the same): applied once, acked once,
+    // the repeat neither answered nor rejected.
+    play(&conn, &mut game, 1.0, |_| 2);
+    let u = game.stats().clone();
+    assert_eq!(u.inputs_acked, u.inputs_sent, "{u:?}");
+    assert!(u.rejects.is_empty(), "no repeat counts as a reject: {u:?}");
+    assert_eq!(u.unmatched_answers, 0, "no input answered twice: {u:?}");
+    conn.close();
+    let summary = server.stop();
+    assert_eq!(summary.inputs_accepted, u.inputs_sent, "{summary}");
+    assert!(summary.inputs_repeated >= u.inputs_sent - t.inputs_sent, "every second copy skipped: {summary}");
+}
+
+#[test]
+fn no_server_and_another_protocol_version_are_clear_errors() {
+    // Nobody owns world "arena" here: a listening peer with no server in it.
+    let port = free_port();
+    let ep = format!("tcp/127.0.0.1:{port}");
+    let mut c = zenoh::Config::default();
+    c.insert_json5("scouting/multicast/enabled", "false").unwrap();
+    c.insert_json5("listen/endpoints", &format!("[\"{ep}\"]")).unwrap();
+    let host = zenoh::open(c).wait().unwrap();
+    let quick = ConnectOptions { find_server: Duration::from_millis(500), ..options(&ep, 1) };
+    match Connection::open(&quick) {
+        Err(e @ TransportError::NoServer { .. }) => assert!(e.to_string().contains("--world arena"), "{e}"),
+        other => panic!("expected no server, got {other:?}"),
+    }
+    // A server of protocol v0 owns it.
+    let _old = host.liveliness().declare_token("impact/v0/arena/server").wait().unwrap();
+    match Connection::open(&quick) {
+        Err(e @ TransportError::VersionMismatch { .. }) => {
+            let text = e.to_string();
+            assert!(text.contains("v0") && text.contains("v1"), "{text}");
+        }
+        other => panic!("expected a version mismatch, got {other:?}"),
+    }
+}
