@@ -159,7 +159,8 @@ struct Client {
     next_action: Instant,
     /// Answers owed by the server, per seq: one per delivery (two for a duplicated input).
     owed: BTreeMap<u32, u32>,
-    /// Seqs acked, kept only while duplicates are injected: a second ack is a replay accepted.
+    /// Seqs acked, kept only while duplicates are injected: a second ack is a replay accepted, and
+    /// a copy delivered after its ack is owed no answer.
     acked: std::collections::BTreeSet<u32>,
     view: EventView,
     margins: Margins,
@@ -183,7 +184,14 @@ impl Client {
         }
     }
 
-    /// Counts an answer to `seq`; false when none was owed (answered twice, or never sent).
+    /// An ack of `seq`: nothing more is owed for it, however many copies were delivered (a copy
+    /// of an accepted input is skipped without an answer); false when none was owed.
+    fn accepted(&mut self, seq: u32) -> bool {
+        self.owed.remove(&seq).is_some()
+    }
+
+    /// Counts a reject of `seq` (a rejected input does not use up its seq, so each copy of it is
+    /// answered); false when none was owed (answered twice, or never sent).
     fn answered(&mut self, seq: u32) -> bool {
         match self.owed.get_mut(&seq) {
             Some(n) if *n > 1 => {
@@ -543,7 +551,7 @@ impl Run<'_> {
                 r.clock_resyncs += u64::from(c.clock.observe(a.server_tick, now));
                 c.margins.record(a.margin_ticks);
                 c.clock.recommend(a.lead_ticks);
-                r.answers_unexpected += u64::from(!c.answered(a.seq));
+                r.answers_unexpected += u64::from(!c.accepted(a.seq));
                 if self.cfg.faults.duplicate > 0.0 && !c.acked.insert(a.seq) {
                     r.answers_unexpected += 1; // a duplicate delivery was accepted
                 }
@@ -628,7 +636,11 @@ impl Run<'_> {
             let put = wiring.session(k).put(&self.input_keys[k], bytes).encoding(self.cfg.encoding.zenoh_tag());
             if put.wait().is_ok() {
                 self.r.inputs_delivered += 1;
-                *self.clients[k].owed.entry(seq).or_insert(0) += 1;
+                // A copy of an input already accepted is owed no answer.
+                let c = &mut self.clients[k];
+                if !c.acked.contains(&seq) {
+                    *c.owed.entry(seq).or_insert(0) += 1;
+                }
             }
         }
     }

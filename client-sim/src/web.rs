@@ -85,6 +85,7 @@ impl Hub {
             left: Vec::new(),
             deferred: 0,
             centre: None,
+            avatar: None,
         })
     }
 
@@ -247,6 +248,7 @@ mod tests {
             left: left.iter().map(|e| EntityId(*e)).collect(),
             deferred: 0,
             centre: None,
+            avatar: None,
         }
     }
 

@@ -11,9 +11,11 @@
 //! body as drawn and as the server had it at that tick.
 
 use clap::Parser;
+use impact_client::predict::{PredictConfig, Predictor};
 use impact_client::remote::DrawnBody;
 use impact_client::transport::{decode_server, ConnectOptions, Connection, Credentials, Mode};
 use impact_client::{Session, SessionConfig, Status};
+use impact_core::scene::Scene;
 use impact_protocol::{keys, Action, ClientId, EntityId, ServerMessage, Tick, WorldId};
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
@@ -43,6 +45,13 @@ struct Args {
     /// Password, with --user.
     #[arg(long, requires = "user")]
     password: Option<String>,
+    /// The scene file the server runs, for predicting the avatar (default: the bundled scene of
+    /// the world's name, scenes/{world}.toml).
+    #[arg(long)]
+    scene: Option<std::path::PathBuf>,
+    /// Do not predict the avatar.
+    #[arg(long)]
+    no_predict: bool,
     /// Inputs per second.
     #[arg(long, default_value_t = 10.0)]
     input_hz: f64,
@@ -64,10 +73,11 @@ fn p99(mut v: Vec<f64>) -> Option<f64> {
     Some(v[((v.len() as f64 * 0.99).ceil() as usize).clamp(1, v.len()) - 1])
 }
 
-/// Every third input fires at the nearest other body drawn (from where the avatar is drawn);
+/// Every third input fires at the nearest other body drawn, from where the avatar is drawn (`me`,
+/// predicted; or as the stream shows it);
 /// the others circle at 6 m/s, bobbing up and down.
-fn next_action(drawn: &[DrawnBody], avatar: EntityId, inputs: u64, t: f64) -> Action {
-    let me = drawn.iter().find(|b| b.entity == avatar).map(|b| b.position);
+fn next_action(drawn: &[DrawnBody], me: Option<[f64; 3]>, avatar: EntityId, inputs: u64, t: f64) -> Action {
+    let me = me.or_else(|| drawn.iter().find(|b| b.entity == avatar).map(|b| b.position));
     if let Some(p) = me.filter(|_| inputs % 3 == 0) {
         let target = drawn
             .iter()
@@ -122,6 +132,11 @@ fn play(a: &Args) -> Result<(), Box<dyn std::error::Error>> {
     opts.credentials = a.user.clone().zip(a.password.clone()).map(|(user, password)| Credentials { user, password });
     let conn = Connection::open(&opts)?;
     let mut game = Session::new(SessionConfig::new(client));
+    if !a.no_predict {
+        let path = a.scene.clone().unwrap_or_else(|| Scene::bundled_path(&a.world));
+        let scene = Scene::load(&path)?;
+        game.predict_with(Predictor::new(&scene, client, PredictConfig::default())?);
+    }
 
     let frame = Duration::from_secs_f64(1.0 / 60.0);
     let joined_by = Instant::now() + Duration::from_secs(10);
@@ -133,6 +148,9 @@ fn play(a: &Args) -> Result<(), Box<dyn std::error::Error>> {
             );
         }
         std::thread::sleep(frame);
+    }
+    if let Some(e) = game.prediction_problem() {
+        return Err(format!("prediction: {e}").into());
     }
     let s = game.stats();
     eprintln!(
@@ -159,13 +177,15 @@ fn play(a: &Args) -> Result<(), Box<dyn std::error::Error>> {
         // The frame: draw the remote world at the render time (a game hands `drawn` to its
         // renderer), read this tick's events.
         game.draw_remote(now, &mut drawn);
+        let me = game.draw_avatar(now);
         remote_bodies = drawn.len();
         frames += 1;
-        let _ = game.take_ray_results().count();
+        // A game shows its shots' results; the session counts hits.
+        game.take_ray_results().for_each(drop);
         if let (Some(avatar), true) = (game.avatar(), now >= next_input) {
             next_input += input_every;
             inputs += 1;
-            let action = next_action(&drawn, avatar, inputs, now.duration_since(start).as_secs_f64());
+            let action = next_action(&drawn, me, avatar, inputs, now.duration_since(start).as_secs_f64());
             game.input(vec![action], now)?;
         }
         // Twice a second: what was drawn at a whole tick, against the server's record of it.
@@ -194,6 +214,7 @@ fn play(a: &Args) -> Result<(), Box<dyn std::error::Error>> {
         std::thread::sleep(frame);
     }
     let s = game.stats().clone();
+    let pr = game.prediction().clone();
     let summary = serde_json::json!({
         "client": client.0,
         "seconds": a.seconds,
@@ -205,8 +226,12 @@ fn play(a: &Args) -> Result<(), Box<dyn std::error::Error>> {
         "corrections": s.corrections,
         "hits": s.hits,
         "remote_bodies": remote_bodies,
-        // Prediction of the own avatar is not in the library yet (issue 27): no figure.
-        "prediction_error_m_p99": serde_json::Value::Null,
+        "prediction_error_m_p99": p99(pr.errors_m.clone()),
+        "prediction_error_untouched_m_p99": p99(pr.errors_untouched_m.clone()),
+        "prediction_states": pr.compared,
+        "prediction_exact": pr.exact,
+        "prediction_causes": pr.causes,
+        "prediction_max_frame_correction_m": pr.max_frame_correction_m,
         "interpolation_error_m_p99": p99(interpolation_errors.clone()),
         "interpolation_samples": interpolation_errors.len(),
         "view_mismatches": game.events().mismatched,

@@ -83,6 +83,11 @@ impl Outbox {
         self.pending.remove(&seq)
     }
 
+    /// The ticks of the inputs awaiting an answer.
+    pub fn pending_ticks(&self) -> impl Iterator<Item = Tick> + '_ {
+        self.pending.values().map(|s| s.tick)
+    }
+
     /// Inputs awaiting an answer.
     pub fn pending(&self) -> usize {
         self.pending.len()

@@ -14,6 +14,8 @@
 //!   each confirmed tick compared with the view.
 //! - [`netsim`]: a network model (latency, jitter, loss) for testing a game locally.
 //!
+//! - [`predict`]: the player's own avatar stepped with the server's core, checked against every
+//!   state the server streams, corrected by replay and eased.
 //! - [`session`]: all of the above as one state machine, a client's whole side of the protocol:
 //!   join and welcome, the time-sync exchange, inputs with redundancy, the three views.
 //! - [`transport`] (feature `zenoh`, on by default): the session over Zenoh, the only I/O here.
@@ -45,8 +47,8 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 //!
-//! Still to come (issue 27): prediction of the player's own avatar with the core, and the wire
-//! additions it needs (the avatar's full core state, the static world as resolved values).
+//! Still to come (issue 27): the static world as resolved values from the server (a client
+//! loads the scene file itself for now, checked by hash).
 
 #![warn(missing_docs)]
 
@@ -54,6 +56,7 @@ pub mod clock;
 pub mod events;
 pub mod inputs;
 pub mod netsim;
+pub mod predict;
 pub mod remote;
 pub mod session;
 #[cfg(feature = "zenoh")]

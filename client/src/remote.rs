@@ -329,6 +329,7 @@ mod tests {
             left: Vec::new(),
             deferred: 0,
             centre: None,
+            avatar: None,
         }
     }
 

@@ -28,6 +28,7 @@
 use crate::clock::Clock;
 use crate::events::EventView;
 use crate::inputs::{Outbox, Sent};
+use crate::predict::{PredictError, Predictor, Reconciled};
 use crate::remote::{DrawnBody, RemoteConfig, RemoteWorld};
 use impact_protocol::limits::{MAX_ACTIONS_PER_INPUT, MAX_INPUTS_PER_MESSAGE};
 use impact_protocol::{
@@ -158,6 +159,34 @@ pub struct SessionStats {
     pub outgoing_dropped: u64,
 }
 
+/// Most prediction errors kept for the figures (about 14 hours of states at 20 Hz); past it the
+/// figures are over the first ones.
+pub const MAX_PREDICTION_SAMPLES: usize = 1 << 20;
+
+/// How the own avatar's prediction fared: every authoritative state compared with the
+/// prediction for its tick.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PredictionStats {
+    /// Authoritative states compared with a prediction.
+    pub compared: u64,
+    /// ...of which equal to the bit.
+    pub exact: u64,
+    /// States taken without a prediction to compare (the first, a new avatar).
+    pub taken: u64,
+    /// Mispredictions by cause: `other_body` (another body came within reach of the avatar
+    /// around that tick: the predictor simulates no other body), `input_late` (one of the
+    /// client's inputs before that tick had not been applied on time), `unexplained` (none of
+    /// these: a bug, since the core is deterministic).
+    pub causes: BTreeMap<&'static str, u64>,
+    /// The error of every compared state, m (0 when exact), in arrival order.
+    pub errors_m: Vec<f64>,
+    /// The same, for states no other body came near (`other_body` and `input_late` left out).
+    pub errors_untouched_m: Vec<f64>,
+    /// The largest distance the easing of a correction moved the drawn avatar in one frame,
+    /// scaled to a 60 Hz frame (the easing's speed over a sixtieth of a second), m.
+    pub max_frame_correction_m: f64,
+}
+
 /// One client's session (see the module docs).
 #[derive(Debug)]
 pub struct Session {
@@ -179,6 +208,12 @@ pub struct Session {
     outgoing: VecDeque<ClientMessage>,
     rays: VecDeque<RayResult>,
     stats: SessionStats,
+    predictor: Option<Predictor>,
+    prediction: PredictionStats,
+    prediction_problem: Option<PredictError>,
+    /// Ticks of inputs acked late (rolled back on the server), for the causes of mispredictions.
+    late_ticks: VecDeque<Tick>,
+    last_drawn: Option<Instant>,
 }
 
 impl Session {
@@ -201,7 +236,113 @@ impl Session {
             outgoing: VecDeque::new(),
             rays: VecDeque::new(),
             stats: SessionStats::default(),
+            predictor: None,
+            prediction: PredictionStats::default(),
+            prediction_problem: None,
+            late_ticks: VecDeque::new(),
+            last_drawn: None,
         }
+    }
+
+    /// Predicts the own avatar with `p` from now on (see [`crate::predict`]); the welcome's
+    /// scene hash is checked against it ([`Session::prediction_problem`] says why prediction
+    /// stopped).
+    pub fn predict_with(&mut self, p: Predictor) {
+        self.predictor = Some(p);
+    }
+
+    /// Why prediction is off after [`Session::predict_with`] (the server runs another scene).
+    pub fn prediction_problem(&self) -> Option<&PredictError> {
+        self.prediction_problem.as_ref()
+    }
+
+    /// How the prediction fared.
+    pub fn prediction(&self) -> &PredictionStats {
+        &self.prediction
+    }
+
+    /// The predictor, if predicting.
+    pub fn predictor(&self) -> Option<&Predictor> {
+        self.predictor.as_ref()
+    }
+
+    /// Where to draw the own avatar at `now`, predicted: at the tick an input made now would be
+    /// stamped with, plus what is left of the last corrections. `None` without prediction or
+    /// before the first authoritative state.
+    pub fn draw_avatar(&mut self, now: Instant) -> Option<[f64; 3]> {
+        let at = self.clock.server_ticks(now)? + if self.cfg.ahead { self.clock.lead().unwrap_or(0.0) } else { 0.0 };
+        let frame_s = self.last_drawn.map_or(0.0, |t| now.saturating_duration_since(t).as_secs_f64());
+        self.last_drawn = Some(now);
+        let (p, moved) = self.predictor.as_mut()?.drawn(at, frame_s)?;
+        // As if the frame were a 60 Hz one: a late frame moves further, at the same speed.
+        if frame_s > 0.0 {
+            let m = &mut self.prediction.max_frame_correction_m;
+            *m = m.max(moved / (frame_s * 60.0));
+        }
+        Some(p)
+    }
+
+    /// An authoritative state of the avatar arrived in a frame at `tick`.
+    fn reconcile(&mut self, tick: Tick, s: &impact_protocol::AvatarState) {
+        if self.avatar() != Some(s.entity) {
+            return;
+        }
+        let Some(p) = self.predictor.as_mut() else { return };
+        let error = match p.authoritative(tick, s) {
+            Reconciled::Taken => {
+                self.prediction.taken += 1;
+                return;
+            }
+            Reconciled::Exact => 0.0,
+            Reconciled::Corrected(e) => e,
+        };
+        let st = &mut self.prediction;
+        st.compared += 1;
+        if st.errors_m.len() < MAX_PREDICTION_SAMPLES {
+            st.errors_m.push(error);
+        }
+        let cause = if error == 0.0 {
+            st.exact += 1;
+            None
+        } else if self.late_ticks.iter().any(|&t| t < tick) || self.outbox.pending_ticks().any(|t| t < tick) {
+            Some("input_late")
+        } else if self.other_body_near(tick, s) {
+            Some("other_body")
+        } else {
+            Some("unexplained")
+        };
+        let st = &mut self.prediction;
+        if let Some(c) = cause {
+            *st.causes.entry(c).or_insert(0) += 1;
+        }
+        if matches!(cause, None | Some("unexplained")) && st.errors_untouched_m.len() < MAX_PREDICTION_SAMPLES {
+            st.errors_untouched_m.push(error);
+        }
+        while self.late_ticks.front().is_some_and(|&t| t < tick) {
+            self.late_ticks.pop_front();
+        }
+    }
+
+    /// Whether another body of the remote world came within reach of the avatar in the ticks
+    /// before `tick` (as the stream drew them: the server's at its frames).
+    fn other_body_near(&self, tick: Tick, s: &impact_protocol::AvatarState) -> bool {
+        let Some(r) = &self.remote else { return false };
+        let size = |e| r.info(e).map_or(0.5, |i| f64::from(i.half_extents_m.iter().copied().fold(0.0f32, f32::max)));
+        let me = size(s.entity);
+        let at = s.position;
+        let mut drawn = Vec::new();
+        let since = self.welcome.as_ref().map_or(8, |w| w.tick_hz / 8);
+        for k in 0..=since {
+            r.draw(f64::from(tick.0.saturating_sub(k)), &mut drawn);
+            let near = drawn.iter().filter(|b| b.entity != s.entity).any(|b| {
+                let d = (0..3).map(|i| (b.position[i] - at[i]).powi(2)).sum::<f64>().sqrt();
+                d < me + size(b.entity) + 0.5
+            });
+            if near {
+                return true;
+            }
+        }
+        false
     }
 
     /// The configuration.
@@ -294,6 +435,9 @@ impl Session {
                 self.observe(a.server_tick, now);
                 self.clock.recommend(a.lead_ticks);
                 self.stats.late_acks += u64::from(a.margin_ticks < 0);
+                if a.margin_ticks < 0 && self.late_ticks.len() < 1024 {
+                    self.late_ticks.push_back(a.applied_tick);
+                }
                 self.resend.retain(|i| i.seq != a.seq);
                 if self.outbox.answered(a.seq).is_some() {
                     self.stats.inputs_acked += 1;
@@ -344,6 +488,9 @@ impl Session {
                 if let Some(r) = self.remote.as_mut() {
                     r.apply(&f);
                 }
+                if let Some(a) = &f.avatar {
+                    self.reconcile(f.tick, a);
+                }
             }
             ServerMessage::Stats(s) => self.observe(s.tick, now),
             _ => self.stats.skipped += 1,
@@ -365,6 +512,10 @@ impl Session {
         // connection): nothing to resend. Ours go on from wherever is further.
         self.resend.retain(|i| i.seq >= w.next_seq);
         self.outbox.resume_from(w.next_seq);
+        if let Some(Err(e)) = self.predictor.as_ref().map(|p| p.check(w.scene_hash)) {
+            self.prediction_problem = Some(e);
+            self.predictor = None;
+        }
         if self.status == Status::Joining {
             self.status = Status::Syncing;
             self.sync_started = Some(now);
@@ -401,6 +552,9 @@ impl Session {
         let view_tick = self.cfg.ahead.then_some(view);
         let input = ClientInput { client: self.cfg.client, seq, tick, view_tick, actions };
         self.outbox.sent(seq, Sent { at: now, tick, view: view_tick });
+        if let Some(p) = self.predictor.as_mut() {
+            p.input(tick, seq, &input.actions);
+        }
         self.stats.inputs_sent += 1;
         // Copies, newest first, while the server can still accept them and the actions fit.
         let oldest = self.welcome.as_ref().map_or(0, |w| view.0.saturating_sub(w.window_ticks));
@@ -472,6 +626,7 @@ mod tests {
             input_lead_ticks: 8,
             max_rewind_ticks: 16,
             next_seq,
+            scene_hash: 0,
         })
     }
 

@@ -83,6 +83,7 @@ fn main() {
         left: vec![EntityId(2071)],
         deferred: 0,
         centre: Some([9.0, 1.0, -4.0]),
+        avatar: None,
     });
     print("client -> server: input", &input);
     print("server -> client: ack", &ack);

@@ -40,5 +40,5 @@ pub use message::{
     InputReject, QueryError, RayHit, RayResult, RejectReason, ServerMessage, ServerStats, ShapeSpec, TimePing,
     TimePong, Welcome, WorldSnapshot,
 };
-pub use state::{BodyInfo, BodyMotion, BodyShape, StateFrame};
+pub use state::{AvatarState, AvatarTouch, BodyInfo, BodyMotion, BodyShape, StateFrame};
 pub use validate::Validate;

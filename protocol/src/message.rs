@@ -300,6 +300,11 @@ pub struct Welcome {
     /// reused while the server remembers the client; see Replay protection in `PROTOCOL.md`).
     #[serde(default)]
     pub next_seq: u32,
+    /// A hash of what a client needs to predict with the core: the static world and the rules
+    /// (`impact_core::sim::World::scene_hash`). A client that loaded the scene itself compares
+    /// it with its own (0: not sent).
+    #[serde(default)]
+    pub scene_hash: u64,
 }
 
 /// One body in a snapshot.

@@ -86,4 +86,42 @@ pub struct StateFrame {
     pub deferred: u32,
     /// The point a client's stream is centred on (its avatar), `None` on the world stream.
     pub centre: Option<[f32; 3]>,
+    /// On a client's stream: its avatar's authoritative state at `tick`, exact (f64, and what the
+    /// core carries between ticks), so the client can check and correct its prediction.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub avatar: Option<AvatarState>,
+}
+
+/// A body's whole state in the core at the start of a tick: what a client needs to step its own
+/// avatar exactly as the server does (PROTOCOL.md, "Prediction").
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AvatarState {
+    /// The body.
+    pub entity: EntityId,
+    /// Centre, world frame, metres (the exact f64).
+    pub position: [f64; 3],
+    /// Velocity, m/s (the exact f64).
+    pub velocity: [f64; 3],
+    /// Asleep.
+    pub asleep: bool,
+    /// Consecutive ticks it has ended slower than the sleep speed (its sleep countdown).
+    pub still_ticks: u16,
+    /// Its contacts with static geometry and terrain at the end of the tick before (the resting
+    /// contact solver starts from them), by ascending other entity.
+    pub touching: Vec<AvatarTouch>,
+}
+
+/// One resting contact of an avatar with static geometry (see [`AvatarState::touching`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AvatarTouch {
+    /// The static body or terrain.
+    pub other: EntityId,
+    /// Unit contact normal, world frame, from the lower entity id to the higher.
+    pub normal: [f64; 3],
+    /// Overlap, m.
+    pub depth_m: f64,
+    /// Normal impulse the contact last needed, N s.
+    pub impulse: f64,
+    /// Friction impulse it last needed, N s, world frame.
+    pub friction_impulse: [f64; 3],
 }

@@ -264,6 +264,18 @@ impl Validate for ServerMessage {
                     f32s(&m.1, &|| format!("moved[{i}].position"))?;
                     f32s(&m.2, &|| format!("moved[{i}].velocity"))?;
                 }
+                if let Some(a) = &f.avatar {
+                    coord3(&a.position, || "avatar.position".into())?;
+                    vec3(&a.velocity, f64::MAX, "speed", || "avatar.velocity".into())?;
+                    for (i, t) in a.touching.iter().enumerate() {
+                        vec3(&t.normal, 1.0 + 1e-6, "length", || format!("avatar.touching[{i}].normal"))?;
+                        finite(t.depth_m, || format!("avatar.touching[{i}].depth_m"))?;
+                        finite(t.impulse, || format!("avatar.touching[{i}].impulse"))?;
+                        vec3(&t.friction_impulse, f64::MAX, "size", || {
+                            format!("avatar.touching[{i}].friction_impulse")
+                        })?;
+                    }
+                }
                 Ok(())
             }
             ServerMessage::Ack(_)

@@ -234,6 +234,33 @@ fn hitscan_is_judged_at_the_shooters_tick() {
     assert!(adv.rays[0].hit.is_none(), "the same shot at the present misses: {:?}", adv.rays[0]);
 }
 
+/// A shot that arrives early (ahead mode: stamped for a tick the server has not reached) is
+/// answered when that tick is simulated, once, and a late one when its re-simulation runs; a
+/// later re-simulation of the same ticks answers neither again. (Early shots went unanswered:
+/// only inputs accepted since the last advance were answered.)
+#[test]
+fn every_shot_is_answered_once_early_or_late() {
+    let (_, mut s) = range_at(106);
+    s.submit(shot(108, Some(104))).unwrap();
+    s.submit(shot(110, Some(106))).unwrap();
+    let mut answered = Vec::new();
+    for _ in 0..2 {
+        answered.extend(s.advance().rays.iter().map(|r| r.seq));
+    }
+    assert_eq!(answered, Vec::<u32>::new(), "nothing before its tick");
+    answered.extend(s.advance().rays.iter().map(|r| r.seq));
+    assert_eq!(answered, [108]);
+    s.submit(shot(105, None)).unwrap();
+    answered.extend(s.advance().rays.iter().map(|r| r.seq));
+    answered.extend(s.advance().rays.iter().map(|r| r.seq));
+    assert_eq!(answered, [108, 105, 110], "the late one at its re-simulation, the early one at its tick");
+    s.submit(shot(107, None)).unwrap();
+    for _ in 0..4 {
+        answered.extend(s.advance().rays.iter().map(|r| r.seq));
+    }
+    assert_eq!(answered, [108, 105, 110, 107], "re-simulating 108 and 110 answers neither again");
+}
+
 #[test]
 fn a_rewound_shot_hits_where_the_shooter_saw_the_target_without_rolling_back() {
     // Ahead mode: the shot is for the present tick 106 (on time), but the shooter was looking at

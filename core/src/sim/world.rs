@@ -508,6 +508,35 @@ impl World {
         self.statics.terrain.as_ref().filter(|t| t.id == id).map(|t| t.class)
     }
 
+    /// A deterministic 64-bit hash of what a client needs beside its own avatar to step it as the
+    /// server does: the rules (every `SimConfig` value) and the static world (ids, classes,
+    /// exact positions, orientations and bounds of the static bodies, and the terrain). A client
+    /// that built its world from its own copy of the scene compares it with the server's
+    /// (`Welcome::scene_hash`): equal, its prediction runs on the same world.
+    pub fn scene_hash(&self) -> u64 {
+        let mut h = StateHasher::new();
+        let text = |h: &mut StateHasher, s: &str| s.bytes().for_each(|b| h.u64(u64::from(b)));
+        // Rust prints an f64 as the shortest text that reads back to the same bits, the same
+        // on every platform: the rules' Debug text is an exact fingerprint of them.
+        text(&mut h, &format!("{:?}", self.config));
+        let st = &self.statics;
+        for i in 0..st.id.len() {
+            h.u64(u64::from(st.id[i].0) << 16 | u64::from(st.class[i].0));
+            for v in [st.pos[i], st.aabb[i].min, st.aabb[i].max] {
+                h.f64(v.x);
+                h.f64(v.y);
+                h.f64(v.z);
+            }
+            for c in st.rot[i].to_array() {
+                h.f64(c);
+            }
+        }
+        if let Some(t) = &st.terrain {
+            text(&mut h, &format!("{:?}", t));
+        }
+        h.finish()
+    }
+
     /// A deterministic 64-bit hash of the state (FNV-1a over the exact bits of every field that
     /// can change). Equal states hash equal on every platform.
     pub fn state_hash(&self) -> u64 {

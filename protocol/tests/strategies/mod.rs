@@ -200,6 +200,7 @@ fn welcome() -> impl Strategy<Value = ServerMessage> {
                 input_lead_ticks: window_ticks / 2,
                 max_rewind_ticks: window_ticks,
                 next_seq: tick.0 / 3,
+                scene_hash: u64::from(tick.0) * 0x9e37_79b9,
             })
         },
     )
@@ -299,6 +300,7 @@ fn state_frame() -> impl Strategy<Value = ServerMessage> {
                 left,
                 deferred: frame % 5,
                 centre: centre.map(f3),
+                avatar: None,
             })
         })
 }

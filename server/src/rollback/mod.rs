@@ -453,7 +453,9 @@ impl Session {
         let paths = if self.cfg.selective { self.stepper.last_paths().to_vec() } else { Vec::new() };
         adv.tick = tick;
         adv.events = self.out.events.clone();
-        self.take_rays(&mut adv);
+        // The present tick is simulated for the first time: every ray in it is answered now,
+        // those of inputs that arrived early (ahead) included, not only the fresh ones.
+        adv.rays.append(&mut self.out.rays);
         adv.skipped.append(&mut self.out.skipped);
         let resolutions = self.stepper.stats.resolutions;
         let frame =
@@ -473,8 +475,9 @@ impl Session {
         adv
     }
 
-    /// Ray results of inputs accepted since the last advance (older ones were answered when
-    /// first simulated; a re-simulation changes their hits through event corrections).
+    /// Ray results of a re-simulated tick, for inputs accepted since the last advance (late
+    /// ones: older ones were answered when first simulated; a re-simulation changes their hits
+    /// through event corrections).
     fn take_rays(&mut self, adv: &mut Advance) {
         for r in self.out.rays.drain(..) {
             if self.fresh.contains(&(r.client, r.seq)) {

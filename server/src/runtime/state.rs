@@ -15,11 +15,10 @@
 //! bytes at most, refilled each frame, so a full frame may spend what the deltas left.
 
 use glam::DVec3;
-use impact_core::sim::world::SimConfig;
-use impact_core::sim::world::{BodyTable, StaticWorld};
+use impact_core::sim::world::{BodyTable, SimConfig, StaticWorld, Touch};
 use impact_protocol::{
-    encode, keys, BodyInfo, BodyMotion, BodyShape, ClientId, Encoding, EntityId, ServerMessage, StateFrame, Tick,
-    WorldId,
+    encode, keys, AvatarState, AvatarTouch, BodyInfo, BodyMotion, BodyShape, ClientId, Encoding, EntityId,
+    ServerMessage, StateFrame, Tick, WorldId,
 };
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -71,6 +70,10 @@ pub struct Capture {
     pub vel: Vec<DVec3>,
     /// Sleep flags.
     pub asleep: Vec<bool>,
+    /// Sleep countdowns.
+    pub still: Vec<u16>,
+    /// The contact cache: what the core carries between ticks for touching pairs.
+    pub touching: Vec<Touch>,
     /// Static geometry and terrain.
     pub statics: Arc<StaticWorld>,
     /// Class names and whether each is static.
@@ -89,6 +92,8 @@ impl Capture {
             pos: b.pos.clone(),
             vel: b.vel.clone(),
             asleep: b.asleep.clone(),
+            still: b.still_ticks.clone(),
+            touching: world.touching.clone(),
             statics: world.statics.clone(),
             config: world.config.clone(),
             watchers,
@@ -357,7 +362,8 @@ impl Streams {
             held.tokens = (held.tokens + per_frame).min(cap_tokens);
             // A new receiver starts from a full frame.
             let full = full || held.frame == 0;
-            let frame = build(held, &self.entries, cap, &self.scratch, Some(held.tokens), full, Some(c));
+            let mut frame = build(held, &self.entries, cap, &self.scratch, Some(held.tokens), full, Some(c));
+            frame.avatar = avatar_state(cap, v.avatar);
             held.tokens = (held.tokens - estimate(&frame) as f64).max(0.0);
             self.counts.client_frames += 1;
             self.counts.in_area += self.scratch.len() as u64;
@@ -498,6 +504,41 @@ fn info(cap: &Capture, e: &Entry) -> BodyInfo {
     }
 }
 
+/// The avatar's whole core state at the capture's tick (PROTOCOL.md, "Prediction"): exact
+/// position and velocity, its sleep state, and its contacts with static geometry.
+fn avatar_state(cap: &Capture, avatar: EntityId) -> Option<AvatarState> {
+    let i = cap.table.id.binary_search(&avatar).ok()?;
+    let is_body = |e: EntityId| cap.table.id.binary_search(&e).is_ok();
+    let touching = cap
+        .touching
+        .iter()
+        .filter_map(|t| {
+            let other = if t.a == avatar {
+                t.b
+            } else if t.b == avatar {
+                t.a
+            } else {
+                return None;
+            };
+            (!is_body(other)).then(|| AvatarTouch {
+                other,
+                normal: t.normal.to_array(),
+                depth_m: t.depth,
+                impulse: t.impulse,
+                friction_impulse: t.friction_impulse.to_array(),
+            })
+        })
+        .collect();
+    Some(AvatarState {
+        entity: avatar,
+        position: cap.pos[i].to_array(),
+        velocity: cap.vel[i].to_array(),
+        asleep: cap.asleep[i],
+        still_ticks: cap.still[i],
+        touching,
+    })
+}
+
 fn shape_of(s: &impact_core::geometry::Shape) -> BodyShape {
     use impact_core::geometry::ShapeKind as K;
     match s.kind() {
@@ -534,6 +575,7 @@ fn build(
         left: Vec::new(),
         deferred: 0,
         centre: centre.map(f32x3),
+        avatar: None,
     };
     held.frame = held.frame.wrapping_add(1);
     let mut spend = FRAME_BYTES;

@@ -61,6 +61,8 @@ pub(super) struct TickLoop {
     /// Marks a standby that took over keeps of what its primary published, so it never publishes
     /// a tick twice (see [`Published`]).
     pub(super) earlier: Published,
+    /// The world's [`scene_hash`](impact_core::sim::World::scene_hash), sent in each welcome.
+    pub(super) scene_hash: u64,
 }
 
 impl TickLoop {
@@ -75,11 +77,13 @@ impl TickLoop {
         let mut rb = opts.rollback.clone().unwrap_or_else(|| RollbackConfig::for_world(&w));
         rb.window_ticks = rb.window_ticks.max(1);
         let plan = Plan::for_world(&w);
+        let scene_hash = w.scene_hash();
         let mut session = Session::new(w, plan, rb);
         session.set_pool(opts.pool.clone());
         let metrics = opts.metrics.as_ref().map(|m| m.world(world.as_str()));
         TickLoop {
             session,
+            scene_hash,
             opts,
             world,
             avatar: scene.avatar,
@@ -574,6 +578,7 @@ impl TickLoop {
             input_lead_ticks: self.session.config().lead_ticks,
             max_rewind_ticks: cfg.max_rewind_ticks.min(self.session.config().window_ticks),
             next_seq: self.session.next_seq(client),
+            scene_hash: self.scene_hash,
         });
         let e = self.clients.get(&client).map_or(self.opts.encoding, |c| c.encoding);
         self.put(self.ack_key(client), &msg, e);
