@@ -12,7 +12,7 @@
 //! [`INBOX_CAPACITY`] (past it they are dropped and counted in [`Connection::dropped`]); a
 //! message that does not decode is counted by the session ([`Session::malformed`]) and skipped.
 //! A dropped link is Zenoh's to restore: the session retries its endpoints with back-off (100 ms
-//! doubling to 2 s) and re-declares the presence and subscriptions; the server welcomes the
+//! doubling to 500 ms) and re-declares the presence and subscriptions; the server welcomes the
 //! client again within its grace period and the session resumes its seqs.
 
 use crate::session::Session;
@@ -122,7 +122,7 @@ pub fn open_session(
             c.insert_json5("connect/exit_on_failure", "true").map_err(bad)?;
             c.insert_json5(
                 "connect/retry",
-                r#"{"period_init_ms": 100, "period_max_ms": 2000, "period_increase_factor": 2}"#,
+                r#"{"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 2}"#,
             )
             .map_err(bad)?;
             c

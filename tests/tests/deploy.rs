@@ -476,3 +476,77 @@ fn router_server_and_clients_in_separate_network_namespaces() {
     let status = server.stop();
     assert!(status.is_some_and(|x| x.success()), "{}", server.output());
 }
+
+/// Pumps `game` until `done` says so or `limit` passes, an input every 50 ms once it plays.
+fn play_until(
+    conn: &impact_client::transport::Connection,
+    game: &mut impact_client::Session,
+    limit: Duration,
+    mut done: impl FnMut(&impact_client::Session) -> bool,
+) -> bool {
+    let end = Instant::now() + limit;
+    let mut next = Instant::now();
+    while Instant::now() < end {
+        let now = Instant::now();
+        conn.pump(game, now).expect("pump");
+        if done(game) {
+            return true;
+        }
+        if let (impact_client::Status::Playing, Some(avatar), true) = (game.status(), game.avatar(), now >= next) {
+            next += Duration::from_millis(50);
+            let action = impact_protocol::Action::SetVelocity { entity: avatar, velocity: [1.0, 0.0, 0.5] };
+            game.input(vec![action], now).expect("input");
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    false
+}
+
+/// The router a client plays through is killed and restarted on the same port mid-game: the
+/// client's Zenoh session reconnects by itself, the server welcomes it again (it came back within
+/// the grace period), and its inputs are answered again within 2 s of the restart; nothing it sent
+/// was applied twice or refused as a replay.
+#[test]
+fn a_client_resumes_after_its_router_restarts() {
+    use impact_client::transport::{ConnectOptions, Connection, Mode};
+    let r = endpoint();
+    let router = Proc::router("restart-r", &r, &[]);
+    std::thread::sleep(Duration::from_millis(300));
+    let srv = server("restart-s", &["arena"], &r, &["--quiet"]);
+    assert!(srv.wait_for_output("listening on", Duration::from_secs(20)), "{}", srv.output());
+    let world = WorldId::new("arena").unwrap();
+    let me = ClientId(7);
+    let opts = ConnectOptions { mode: Mode::Client, ..ConnectOptions::new(vec![r.clone()], world, me) };
+    let conn = Connection::open(&opts).expect("connects through the router");
+    let mut game = impact_client::Session::new(impact_client::SessionConfig::new(me));
+    assert!(play_until(&conn, &mut game, Duration::from_secs(20), |g| g.stats().inputs_acked >= 20), "played");
+
+    drop(router);
+    play_until(&conn, &mut game, Duration::from_secs(1), |_| false);
+    let router = Proc::router("restart-r2", &r, &[]);
+    let restarted = Instant::now();
+    let answered = game.stats().inputs_acked;
+    let back = play_until(&conn, &mut game, Duration::from_secs(10), |g| g.stats().inputs_acked > answered);
+    let took = restarted.elapsed();
+    assert!(back, "never answered again after the restart: {:?}\nserver:\n{}", game.stats(), srv.output());
+    assert!(took < Duration::from_secs(2), "the first answer came {took:?} after the restart");
+    assert!(play_until(&conn, &mut game, Duration::from_secs(5), |g| g.stats().inputs_acked > answered + 20), "steady");
+    let s = game.stats().clone();
+    assert!(s.welcomes >= 2, "welcomed again: {s:?}");
+    assert_eq!(s.rejects.get(&impact_protocol::RejectReason::Duplicate), None, "{s:?}");
+    assert_eq!(s.unmatched_answers, 0, "an input answered twice: {s:?}");
+    // The server's own count: never more inputs accepted than the client made.
+    let stats = Tap::new(conn.zenoh(), &keys::STATS.key(&WorldId::new("arena").unwrap(), None));
+    let accepted = stats
+        .wait_for(Duration::from_secs(3), |_, m, _| match m {
+            ServerMessage::Stats(st) => Some(st.inputs_accepted),
+            _ => None,
+        })
+        .expect("stats");
+    assert!(accepted <= s.inputs_sent && accepted >= s.inputs_acked, "{accepted} accepted, {s:?}");
+    eprintln!(
+        "router restart: first answer {took:?} after; {} welcomes; {accepted} accepted of {} sent",
+        s.welcomes, s.inputs_sent
+    );
+    drop(router);
+}

@@ -237,6 +237,10 @@ const FRAME_BYTES: usize = 160;
 const MOTION_BYTES: usize = 40;
 const INFO_BYTES: usize = 120; // plus the class name
 const LEFT_BYTES: usize = 5;
+/// The avatar's state on a client's stream (its key, six fields, f64s at 9 bytes), and each of
+/// its contacts.
+const AVATAR_BYTES: usize = 136;
+const TOUCH_BYTES: usize = 128;
 
 fn f32x3(v: DVec3) -> [f32; 3] {
     [v.x as f32, v.y as f32, v.z as f32]
@@ -667,7 +671,8 @@ fn build(
 /// The budgeted size of a frame: at least its MessagePack size.
 fn estimate(f: &StateFrame) -> usize {
     let infos: usize = f.entered.iter().map(|i| INFO_BYTES + i.class.len()).sum();
-    FRAME_BYTES + infos + f.moved.len() * MOTION_BYTES + f.left.len() * LEFT_BYTES
+    let avatar = f.avatar.as_ref().map_or(0, |a| AVATAR_BYTES + a.touching.len() * TOUCH_BYTES);
+    FRAME_BYTES + infos + f.moved.len() * MOTION_BYTES + f.left.len() * LEFT_BYTES + avatar
 }
 
 fn publish(
