@@ -235,6 +235,8 @@ mod tests {
             half_extents_m: [0.5; 3],
             offset_m: [0.0; 3],
             fixed: false,
+            rotation: None,
+            local_shape: None,
         }
     }
 

@@ -32,8 +32,8 @@ use crate::predict::{PredictError, Predictor, Reconciled};
 use crate::remote::{DrawnBody, RemoteConfig, RemoteWorld};
 use impact_protocol::limits::{MAX_ACTIONS_PER_INPUT, MAX_INPUTS_PER_MESSAGE};
 use impact_protocol::{
-    Action, ClientId, ClientInput, ClientMessage, EntityId, InputBatch, RayResult, RejectReason, ServerMessage, Tick,
-    TimePing, Welcome,
+    Action, ClientId, ClientInput, ClientMessage, EntityId, FullFrameRequest, InputBatch, RayResult, RejectReason,
+    ServerMessage, Tick, TimePing, Welcome,
 };
 use std::collections::{BTreeMap, VecDeque};
 use std::time::{Duration, Instant};
@@ -44,6 +44,9 @@ pub const SYNC_PROBES: usize = 5;
 /// The longest the sync waits for its probes (a server that does not answer them, or a lossy
 /// link): then play starts with what it has, or with the acks' lead alone.
 pub const SYNC_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// While the state stream waits for a full frame (after a gap), one is asked for this often.
+pub const FULL_FRAME_EVERY: Duration = Duration::from_millis(250);
 
 /// A probe unanswered this long is taken as lost, and the next one is sent.
 pub const PROBE_TIMEOUT: Duration = Duration::from_millis(250);
@@ -155,6 +158,8 @@ pub struct SessionStats {
     pub malformed: u64,
     /// Messages for another client, or of a kind a client does not use: skipped.
     pub skipped: u64,
+    /// Full state frames asked for after a gap.
+    pub full_frames_asked: u64,
     /// Outgoing messages dropped because the transport did not take them.
     pub outgoing_dropped: u64,
 }
@@ -214,6 +219,8 @@ pub struct Session {
     /// Ticks of inputs acked late (rolled back on the server), for the causes of mispredictions.
     late_ticks: VecDeque<Tick>,
     last_drawn: Option<Instant>,
+    /// When a full state frame was last asked for.
+    full_asked: Option<Instant>,
 }
 
 impl Session {
@@ -241,6 +248,7 @@ impl Session {
             prediction_problem: None,
             late_ticks: VecDeque::new(),
             last_drawn: None,
+            full_asked: None,
         }
     }
 
@@ -607,6 +615,14 @@ impl Session {
                 return Some(ClientMessage::Ping(TimePing { client: self.cfg.client, id }));
             }
         }
+        // A state stream past a gap ignores deltas until a full frame: ask for one rather than
+        // wait for the periodic one (up to 2 s).
+        let waiting = self.stats.state_frames > 0 && self.remote.as_ref().is_some_and(RemoteWorld::needs_full_frame);
+        if waiting && self.full_asked.is_none_or(|at| now.saturating_duration_since(at) >= FULL_FRAME_EVERY) {
+            self.full_asked = Some(now);
+            self.stats.full_frames_asked += 1;
+            return Some(ClientMessage::FullFrame(FullFrameRequest { client: self.cfg.client }));
+        }
         self.outgoing.pop_front()
     }
 }
@@ -706,7 +722,7 @@ mod tests {
         let seqs = |m: ClientMessage| match m {
             ClientMessage::Input(i) => vec![i.seq],
             ClientMessage::Inputs(b) => b.inputs.iter().map(|i| i.seq).collect(),
-            ClientMessage::Ping(_) => vec![],
+            ClientMessage::Ping(_) | ClientMessage::FullFrame(_) => vec![],
         };
         let mut sent = Vec::new();
         for _ in 0..5 {
@@ -738,5 +754,43 @@ mod tests {
         s.receive(ack(1, 100, 3), t0);
         assert_eq!(s.stats().skipped, 2);
         assert_eq!(s.stats().unmatched_answers, 0);
+    }
+
+    /// A gap in the state stream's frame numbers: a full frame is asked for at once and again
+    /// every 250 ms while none came; none once one did.
+    #[test]
+    fn a_gap_in_the_state_stream_asks_for_a_full_frame() {
+        use impact_protocol::StateFrame;
+        let frame = |n: u32, full: bool| {
+            ServerMessage::State(StateFrame {
+                tick: Tick(100 + n),
+                frame: n,
+                full,
+                entered: vec![],
+                moved: vec![],
+                left: vec![],
+                deferred: 0,
+                centre: None,
+                avatar: None,
+            })
+        };
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig::new(ClientId(7)));
+        s.receive(welcome(0), t0);
+        let t = t0 + SYNC_TIMEOUT;
+        let asks = |s: &mut Session, t: Instant| {
+            std::iter::from_fn(|| s.poll_transmit(t)).filter(|m| matches!(m, ClientMessage::FullFrame(_))).count()
+        };
+        assert_eq!(asks(&mut s, t), 0, "no stream yet");
+        s.receive(frame(0, true), t);
+        s.receive(frame(1, false), t);
+        assert_eq!(asks(&mut s, t), 0);
+        s.receive(frame(3, false), t);
+        assert_eq!(asks(&mut s, t), 1, "frame 2 lost");
+        assert_eq!(asks(&mut s, t + Duration::from_millis(100)), 0, "not again so soon");
+        assert_eq!(asks(&mut s, t + Duration::from_millis(260)), 1, "still none: again");
+        s.receive(frame(5, true), t + Duration::from_millis(300));
+        assert_eq!(asks(&mut s, t + Duration::from_millis(600)), 0, "the full frame came");
+        assert_eq!(s.stats().full_frames_asked, 2);
     }
 }

@@ -75,6 +75,8 @@ fn main() {
             half_extents_m: [0.5, 0.5, 0.5],
             offset_m: [0.0, 0.0, 0.0],
             fixed: false,
+            rotation: None,
+            local_shape: None,
         }],
         moved: vec![
             BodyMotion(EntityId(3), [10.25, 0.5, -4.0], [-3.5, 0.0, 0.0], false),

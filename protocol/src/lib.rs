@@ -36,9 +36,9 @@ pub use event::{CollisionEvent, EventKey, EventStatus, Phase, Response};
 pub use ids::{ClientId, EntityId, Tick, WorldId};
 pub use log::{Admitted, Checkpoint, LogTick, LoggedInput, LoggedSystem};
 pub use message::{
-    Action, BodyState, ClientInput, ClientMessage, CorrectionBatch, EventBatch, EventHistory, InputAck, InputBatch,
-    InputReject, QueryError, RayHit, RayResult, RejectReason, ServerMessage, ServerStats, ShapeSpec, TimePing,
-    TimePong, Welcome, WorldSnapshot,
+    Action, BodyState, ClientInput, ClientMessage, CorrectionBatch, EventBatch, EventHistory, FullFrameRequest,
+    InputAck, InputBatch, InputReject, QueryError, RayHit, RayResult, RejectReason, ServerMessage, ServerStats,
+    ShapeSpec, TimePing, TimePong, Welcome, WorldSnapshot,
 };
 pub use state::{AvatarState, AvatarTouch, BodyInfo, BodyMotion, BodyShape, StateFrame};
 pub use validate::Validate;

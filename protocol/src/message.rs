@@ -25,6 +25,16 @@ pub enum ClientMessage {
     /// A time-sync probe: the server answers at once with a [`ServerMessage::Pong`] naming its
     /// tick, so a client measures its round trip before its first input.
     Ping(TimePing),
+    /// Asks for a full frame on the client's state stream at the next frame (after a gap in the
+    /// frame numbers, instead of waiting for the periodic one).
+    FullFrame(FullFrameRequest),
+}
+
+/// See [`ClientMessage::FullFrame`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FullFrameRequest {
+    /// The sender.
+    pub client: ClientId,
 }
 
 /// Several inputs of one client, oldest first (at most

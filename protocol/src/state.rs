@@ -50,6 +50,14 @@ pub struct BodyInfo {
     pub offset_m: [f32; 3],
     /// Static: never moves.
     pub fixed: bool,
+    /// Its orientation, a unit quaternion `[x, y, z, w]`, fixed for its life; absent: the
+    /// identity.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rotation: Option<[f32; 4]>,
+    /// Its shape in its own frame, for drawing: a sphere, capsule, cuboid or ellipsoid with its
+    /// dimensions (hulls, meshes and terrain are drawn by their bounds: absent).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub local_shape: Option<crate::ShapeSpec>,
 }
 
 /// Where a body is and how it moves, as an array `[entity, [x, y, z], [vx, vy, vz], asleep]`

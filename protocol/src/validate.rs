@@ -181,7 +181,7 @@ impl Validate for ClientMessage {
                 batch.validate_envelope()?;
                 batch.inputs.iter().try_for_each(Validate::validate)
             }
-            ClientMessage::Ping(_) => Ok(()),
+            ClientMessage::Ping(_) | ClientMessage::FullFrame(_) => Ok(()),
         }
     }
 }
@@ -259,6 +259,19 @@ impl Validate for ServerMessage {
                     count(b.class.len(), MAX_NAME_LEN, "class")?;
                     f32s(&b.half_extents_m, &|| format!("entered[{i}].half_extents_m"))?;
                     f32s(&b.offset_m, &|| format!("entered[{i}].offset_m"))?;
+                    if let Some(r) = &b.rotation {
+                        r.iter().try_for_each(|x| finite(f64::from(*x), || format!("entered[{i}].rotation")))?;
+                    }
+                    // Any size a scene may hold (static ground can be kilometres): finite only.
+                    let sizes: Vec<f64> = match &b.local_shape {
+                        Some(ShapeSpec::Sphere { radius_m }) => vec![*radius_m],
+                        Some(ShapeSpec::Capsule { half_height_m, radius_m }) => vec![*half_height_m, *radius_m],
+                        Some(ShapeSpec::Cuboid { half_extents_m: d } | ShapeSpec::Ellipsoid { radii_m: d }) => {
+                            d.to_vec()
+                        }
+                        Some(ShapeSpec::Convex { .. } | ShapeSpec::Mesh { .. }) | None => Vec::new(),
+                    };
+                    sizes.iter().try_for_each(|x| finite(*x, || format!("entered[{i}].local_shape")))?;
                 }
                 for (i, m) in f.moved.iter().enumerate() {
                     f32s(&m.1, &|| format!("moved[{i}].position"))?;

@@ -54,8 +54,8 @@ pub fn read_inputs(path: &Path) -> Result<InputScript, OfflineError> {
         let inputs = match msg {
             ClientMessage::Input(input) => vec![input],
             ClientMessage::Inputs(batch) => batch.inputs,
-            ClientMessage::Ping(_) => {
-                let detail = "a ping is not an input: only `input` and `inputs` lines apply".to_string();
+            ClientMessage::Ping(_) | ClientMessage::FullFrame(_) => {
+                let detail = "not an input: only `input` and `inputs` lines apply".to_string();
                 return Err(OfflineError::Inputs { file: file.clone(), line: k + 1, detail });
             }
         };

@@ -87,6 +87,7 @@ pub fn client_message() -> impl Strategy<Value = ClientMessage> {
             }
         ),
         1 => (client(), any::<u32>()).prop_map(|(client, id)| ClientMessage::Ping(TimePing { client, id })),
+        1 => client().prop_map(|client| ClientMessage::FullFrame(FullFrameRequest { client })),
     ]
 }
 
@@ -294,6 +295,8 @@ fn state_frame() -> impl Strategy<Value = ServerMessage> {
                         half_extents_m: f3(half),
                         offset_m: [0.0; 3],
                         fixed: owner.is_none(),
+                        rotation: None,
+                        local_shape: None,
                     })
                     .collect(),
                 moved: moved.into_iter().map(|(e, p, v, a)| BodyMotion(e, f3(p), f3(v), a)).collect(),

@@ -144,6 +144,7 @@ enum Control {
 enum Ingress {
     Input { input: ClientInput, encoding: Encoding },
     Ping { ping: TimePing, encoding: Encoding },
+    FullFrame(ClientId),
 }
 
 struct ClientState {
@@ -158,6 +159,8 @@ struct ClientState {
     /// for every ack and event batch otherwise: 5 % of the tick at 1,000 clients).
     ack_key: String,
     events_key: String,
+    /// It asked for a full state frame (after a gap); cleared once a capture carries the ask.
+    want_full: bool,
 }
 
 /// Counters shared with the callbacks.

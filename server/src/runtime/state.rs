@@ -54,6 +54,8 @@ pub struct Watcher {
     pub avatar: EntityId,
     /// The encoding it asked for.
     pub encoding: Encoding,
+    /// It asked for a full frame (after a gap in its frame numbers).
+    pub full: bool,
 }
 
 /// What the tick thread hands over: the moving state of one tick, and the parts that do not
@@ -235,7 +237,7 @@ struct HeldBody {
 /// the bytes sent never exceed it).
 const FRAME_BYTES: usize = 160;
 const MOTION_BYTES: usize = 40;
-const INFO_BYTES: usize = 120; // plus the class name
+const INFO_BYTES: usize = 210; // plus the class name; 90 of it the rotation and the local shape
 const LEFT_BYTES: usize = 5;
 /// The avatar's state on a client's stream (its key, six fields, f64s at 9 bytes), and each of
 /// its contacts.
@@ -364,8 +366,8 @@ impl Streams {
                 ..Held::default()
             });
             held.tokens = (held.tokens + per_frame).min(cap_tokens);
-            // A new receiver starts from a full frame.
-            let full = full || held.frame == 0;
+            // A new receiver starts from a full frame, and one that asked for it gets one.
+            let full = full || held.frame == 0 || v.full;
             let mut frame = build(held, &self.entries, cap, &self.scratch, Some(held.tokens), full, Some(c));
             frame.avatar = avatar_state(cap, v.avatar);
             held.tokens = (held.tokens - estimate(&frame) as f64).max(0.0);
@@ -493,18 +495,25 @@ fn info(cap: &Capture, e: &Entry) -> BodyInfo {
     let pos = DVec3::new(f64::from(e.motion.1[0]), f64::from(e.motion.1[1]), f64::from(e.motion.1[2]));
     let offset = (e.hi + e.lo) * 0.5 - pos;
     let (owner, shape) = match e.src {
-        Src::Dynamic(i) => (cap.table.owner[i], shape_of(&cap.table.shape[i])),
-        Src::Static(i) => (None, shape_of(&cap.statics.shape[i])),
-        Src::Terrain => (None, BodyShape::Terrain),
+        Src::Dynamic(i) => (cap.table.owner[i], Some((&cap.table.shape[i], cap.table.rot[i]))),
+        Src::Static(i) => (None, Some((&cap.statics.shape[i], cap.statics.rot[i]))),
+        Src::Terrain => (None, None),
     };
+    let primitive = |s: &impact_core::geometry::Shape| {
+        use impact_core::geometry::ShapeKind as K;
+        matches!(s.kind(), K::Sphere | K::Capsule | K::Cuboid | K::Ellipsoid).then(|| s.to_spec())
+    };
+    let rotation = shape.map(|(_, r)| r).filter(|r| *r != glam::DQuat::IDENTITY).map(|r| r.as_quat().to_array());
     BodyInfo {
         entity: e.motion.0,
         class: class_name(cap, e).to_string(),
         owner,
-        shape,
+        shape: shape.map_or(BodyShape::Terrain, |(s, _)| shape_of(s)),
         half_extents_m: f32x3(half),
         offset_m: f32x3(offset),
         fixed: !matches!(e.src, Src::Dynamic(_)),
+        rotation,
+        local_shape: shape.and_then(|(s, _)| primitive(s)),
     }
 }
 
@@ -799,7 +808,7 @@ mod tests {
                     owner: Some(ClientId(k + 1)),
                 })
                 .unwrap();
-            watchers.push(Watcher { client: ClientId(k + 1), avatar: id, encoding: Encoding::MsgPack });
+            watchers.push(Watcher { client: ClientId(k + 1), avatar: id, encoding: Encoding::MsgPack, full: false });
         }
         (w, watchers)
     }
@@ -927,6 +936,39 @@ mod tests {
             assert!((*b as f64) <= bound, "client {k}: {b} bytes in {seconds} s, bound {bound}");
             assert!((*b as f64) > 0.5 * f64::from(o.bytes_per_s) * seconds, "client {k} used little: {b}");
         }
+    }
+
+    /// A client that asks (after a gap) gets a full frame at the next capture, and deltas again
+    /// after it; a client that did not ask is not disturbed. Each frame carries the avatar's
+    /// exact state.
+    #[test]
+    fn a_full_frame_comes_when_asked() {
+        let (w, watchers) = arena(2);
+        let mut s = Streams::new(WorldId::new("arena").unwrap(), opts(), Encoding::MsgPack);
+        let fulls = |s: &mut Streams, ask: bool| -> Vec<bool> {
+            let mut ws = watchers.clone();
+            ws[0].full = ask;
+            s.frames(&Capture::of(&w, ws), false, true).iter().map(|p| decoded(p).full).collect()
+        };
+        let first = s.frames(&Capture::of(&w, watchers.clone()), false, true);
+        let f = decoded(&first[0]);
+        assert!(f.full, "a new receiver starts full");
+        // What a game needs to draw a body: its shape in its own frame (the arena's are unrotated
+        // spheres: no rotation sent).
+        let me = f.entered.iter().find(|b| b.entity == watchers[0].avatar).expect("the avatar entered");
+        assert_eq!(me.local_shape, Some(impact_protocol::ShapeSpec::Sphere { radius_m: 0.5 }));
+        assert_eq!(me.rotation, None);
+        assert_eq!(fulls(&mut s, false), [false, false]);
+        assert_eq!(fulls(&mut s, false), [false, false]);
+        assert_eq!(fulls(&mut s, true), [true, false]);
+        assert_eq!(fulls(&mut s, false), [false, false]);
+        let f = decoded(&s.frames(&Capture::of(&w, watchers.clone()), false, true)[0]);
+        let a = f.avatar.expect("the avatar's state");
+        let i = w.bodies.slot(watchers[0].avatar).unwrap();
+        assert_eq!(
+            (a.entity, a.position, a.velocity),
+            (watchers[0].avatar, w.bodies.pos[i].to_array(), w.bodies.vel[i].to_array())
+        );
     }
 
     #[test]

@@ -114,7 +114,7 @@ fn one(a: &StateArgs, clients: u32, aoi: f64) -> Result<Figures> {
     let avatars: Vec<Watcher> = out
         .spawned
         .iter()
-        .map(|(client, entity)| Watcher { client: *client, avatar: *entity, encoding: Encoding::MsgPack })
+        .map(|(client, entity)| Watcher { client: *client, avatar: *entity, encoding: Encoding::MsgPack, full: false })
         .collect();
     let opts = StateOptions { hz: a.hz, aoi_m: aoi, bytes_per_s: a.budget, ..StateOptions::default() };
     let mut streams = Streams::new(WorldId::new("arena").map_err(anyhow::Error::msg)?, opts, Encoding::MsgPack);

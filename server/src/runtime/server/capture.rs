@@ -23,11 +23,16 @@ impl TickLoop {
             .clients
             .iter()
             .filter(|(_, s)| s.present)
-            .filter_map(|(c, s)| s.avatar.map(|avatar| Watcher { client: *c, avatar, encoding: s.encoding }))
+            .filter_map(|(c, s)| {
+                s.avatar.map(|avatar| Watcher { client: *c, avatar, encoding: s.encoding, full: s.want_full })
+            })
             .collect();
         let cap = Capture::of(self.session.world(), watchers);
         if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) = tx.try_send(cap) {
             self.state_counters.skipped.fetch_add(1, Ordering::Relaxed);
+        } else {
+            // The asks went with this capture.
+            self.clients.values_mut().for_each(|s| s.want_full = false);
         }
         self.state_counters.capture_ns.fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
     }

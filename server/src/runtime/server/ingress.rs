@@ -64,6 +64,12 @@ pub(super) fn declare_primary(
                         }
                         batch.inputs
                     }
+                    Ok(ClientMessage::FullFrame(r)) => {
+                        if r.client == client {
+                            let _ = tx.try_send(Ingress::FullFrame(client));
+                        }
+                        return;
+                    }
                     Ok(ClientMessage::Ping(ping)) => {
                         // A probe lost to a full queue is one the client sends again.
                         if ping.client == client {

@@ -161,6 +161,7 @@ impl TickLoop {
             timing: LeadEstimator::default(),
             ack_key: keys::CLIENT_ACK.key(&self.world, Some(client)),
             events_key: keys::CLIENT_EVENTS.key(&self.world, Some(client)),
+            want_full: false,
         }
     }
 
@@ -361,6 +362,15 @@ impl TickLoop {
                 Ingress::Input { input, encoding } => (input, encoding),
                 Ingress::Ping { ping, encoding } => {
                     self.pong(ping, encoding);
+                    continue;
+                }
+                Ingress::FullFrame(client) => {
+                    // Costs a token, as a probe does; from a client the server does not know, or
+                    // out of tokens, it is dropped (the client asks again).
+                    if let Some(s) = self.clients.get_mut(&client).filter(|s| s.tokens >= 1.0) {
+                        s.tokens -= 1.0;
+                        s.want_full = true;
+                    }
                     continue;
                 }
             };
