@@ -295,15 +295,34 @@ fn state_frame() -> impl Strategy<Value = ServerMessage> {
                         half_extents_m: f3(half),
                         offset_m: [0.0; 3],
                         fixed: owner.is_none(),
-                        rotation: None,
-                        local_shape: None,
+                        rotation: (shape % 2 == 0).then_some([0.0, 0.382_683_43, 0.0, 0.923_879_5]),
+                        local_shape: (shape < 3).then(|| ShapeSpec::Capsule {
+                            half_height_m: half[1],
+                            radius_m: half[0],
+                        }),
                     })
                     .collect(),
                 moved: moved.into_iter().map(|(e, p, v, a)| BodyMotion(e, f3(p), f3(v), a)).collect(),
                 left,
                 deferred: frame % 5,
                 centre: centre.map(f3),
-                avatar: None,
+                // A client's stream carries its avatar's exact state, with a contact now and then.
+                avatar: centre.map(|c| AvatarState {
+                    entity: EntityId(frame),
+                    position: c,
+                    velocity: [c[2], -c[1], 0.125],
+                    asleep: frame % 3 == 0,
+                    still_ticks: (frame % 700) as u16,
+                    touching: (0..frame % 3)
+                        .map(|k| AvatarTouch {
+                            other: EntityId(k),
+                            normal: [0.0, 1.0, 0.0],
+                            depth_m: c[0].abs() * 1e-3,
+                            impulse: c[1],
+                            friction_impulse: [c[2], 0.0, -c[0]],
+                        })
+                        .collect(),
+                }),
             })
         })
 }
