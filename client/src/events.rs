@@ -1,5 +1,5 @@
 //! The event view: a client's collision events as they stand. Provisional `events` batches are
-//! applied as they come, then `corrections` by event identity (PROTOCOL.md, "Corrections"), and
+//! applied as they come, then `corrections` by event identity (PROTOCOL.md, "Collision event"), and
 //! when a tick is confirmed its view is compared with the confirmed batch and the tick leaves the
 //! view. A game reads a tick's events as they stand with [`EventView::at`]; what it already showed
 //! and is corrected, it redraws.

@@ -3,7 +3,7 @@
 //! gives it actions ([`Session::input`]) and reads its views each frame. Nothing here does I/O or
 //! reads a clock: every call takes the local instant.
 //!
-//! Its life (PROTOCOL.md, "Joining" and "Time sync"):
+//! Its life (PROTOCOL.md, "Presence" and "`ping` (time sync)"):
 //!
 //! 1. **Joining**: the transport declared the client's presence; the session waits for its
 //!    [`Welcome`] (its avatar, the tick rate, the window, the seq to resume from).
