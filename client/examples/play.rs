@@ -106,7 +106,7 @@ struct Check {
 
 impl Check {
     /// Compares what was drawn with the server's answer once it came (true: done).
-    fn compare(&self, errors: &mut Vec<f64>) -> bool {
+    fn compare(&self, errors: &mut Vec<f64>, steady: &mut Vec<f64>) -> bool {
         let Ok(Some(reply)) = self.replies.try_recv() else { return false };
         if let Ok(ServerMessage::Snapshot(s)) =
             reply.result().map_err(|_| ()).and_then(|s| decode_server(s).map_err(|_| ()))
@@ -115,7 +115,11 @@ impl Check {
                 let truth: BTreeMap<_, _> = s.bodies.iter().map(|b| (b.entity, b.position)).collect();
                 for d in &self.drawn {
                     if let Some(p) = truth.get(&d.entity) {
-                        errors.push((0..3).map(|k| (d.position[k] - p[k]).powi(2)).sum::<f64>().sqrt());
+                        let e = (0..3).map(|k| (d.position[k] - p[k]).powi(2)).sum::<f64>().sqrt();
+                        errors.push(e);
+                        if d.steady {
+                            steady.push(e);
+                        }
                     }
                 }
             }
@@ -170,6 +174,7 @@ fn play(a: &Args) -> Result<(), Box<dyn std::error::Error>> {
     let mut drawn = Vec::new();
     let mut checks: Vec<Check> = Vec::new();
     let mut interpolation_errors = Vec::new();
+    let mut steady_errors = Vec::new();
     let state_key = keys::QUERY_STATE.key(&world, None);
     while Instant::now() < end {
         let now = Instant::now();
@@ -204,7 +209,7 @@ fn play(a: &Args) -> Result<(), Box<dyn std::error::Error>> {
                 checks.push(Check { tick, drawn: at_tick, replies });
             }
         }
-        checks.retain(|c| !c.compare(&mut interpolation_errors));
+        checks.retain(|c| !c.compare(&mut interpolation_errors, &mut steady_errors));
         std::thread::sleep(frame.saturating_sub(now.elapsed()));
     }
     // The answers still owed.
@@ -234,6 +239,9 @@ fn play(a: &Args) -> Result<(), Box<dyn std::error::Error>> {
         "prediction_max_frame_correction_m": pr.max_frame_correction_m,
         "interpolation_error_m_p99": p99(interpolation_errors.clone()),
         "interpolation_samples": interpolation_errors.len(),
+        // Bodies nothing hit between the two frames they were drawn between.
+        "interpolation_error_steady_m_p99": p99(steady_errors.clone()),
+        "interpolation_steady_samples": steady_errors.len(),
         "view_mismatches": game.events().mismatched,
         "view_matches": game.events().matched,
         "rtt_ms_min": s.sync_rtt_min_s * 1e3,

@@ -99,6 +99,10 @@ pub struct DrawnBody {
     pub velocity: [f64; 3],
     /// Carried past the stream's newest frame (frames are late).
     pub extrapolated: bool,
+    /// Nothing changed its motion around the render tick (its samples either side carry the
+    /// same velocity, or its last sample is followed by frames that did not carry it), so it is
+    /// drawn where the server had it, up to the f32 of the stream.
+    pub steady: bool,
 }
 
 /// What [`RemoteWorld::apply`] did with a frame.
@@ -286,17 +290,18 @@ impl RemoteWorld {
         let r = render_tick.min(limit);
         // The last sample at or before r, and the one after it.
         let after = b.samples.partition_point(|s| f64::from(s.tick.0) <= r);
-        let (position, velocity) = match (after.checked_sub(1).map(|k| &b.samples[k]), b.samples.get(after)) {
-            (None, _) => (first.at(r, dt), first.velocity),
-            (Some(a), None) => (a.at(r, dt), a.velocity),
+        let (position, velocity, steady) = match (after.checked_sub(1).map(|k| &b.samples[k]), b.samples.get(after)) {
+            (None, _) => (first.at(r, dt), first.velocity, false),
+            // Up to the stream's newest frame, the stream vouches that nothing changed it.
+            (Some(a), None) => (a.at(r, dt), a.velocity, r <= newest),
             (Some(a), Some(n)) => {
                 let (ta, tn) = (f64::from(a.tick.0), f64::from(n.tick.0));
                 let f = (r - ta) / (tn - ta);
                 let (pa, pn) = (a.at(r, dt), n.at(r, dt));
-                (std::array::from_fn(|k| pa[k] + (pn[k] - pa[k]) * f), a.velocity)
+                (std::array::from_fn(|k| pa[k] + (pn[k] - pa[k]) * f), a.velocity, a.velocity == n.velocity)
             }
         };
-        Some(DrawnBody { entity, position, velocity, extrapolated: render_tick > newest })
+        Some(DrawnBody { entity, position, velocity, extrapolated: render_tick > newest, steady })
     }
 }
 
@@ -347,6 +352,7 @@ mod tests {
         assert_eq!(w.apply(&frame(0, 10, true, &[(1, [0.0, 1.0, 0.0], [2.0, 0.0, 0.0])])), Applied::Applied);
         assert_eq!(w.apply(&frame(1, 13, false, &[])), Applied::Applied);
         for r in [10.0, 11.25, 12.5, 13.0] {
+            assert!(w.draw_one(EntityId(1), r).unwrap().steady);
             let want = 2.0 * (r - 10.0) / 64.0;
             assert!((x_at(&w, 1, r) - want).abs() < 1e-12, "at {r}: {} vs {want}", x_at(&w, 1, r));
         }
@@ -375,6 +381,7 @@ mod tests {
         // Bounced back at tick 2 (x = 0.2): at tick 4 it is at 0.0 moving at -6.4.
         w.apply(&frame(1, 4, false, &[(1, [0.0, 0.0, 0.0], [-6.4, 0.0, 0.0])]));
         assert!(x_at(&w, 1, 0.0).abs() < 1e-12 && x_at(&w, 1, 4.0).abs() < 1e-12);
+        assert!(!w.draw_one(EntityId(1), 2.0).unwrap().steady, "a bounce between the frames");
         // The blend of the two carried paths (0.1 r and 0.1 (4 - r) metres) is the parabola
         // 0.2 r - 0.05 r^2: through the bounce point at tick 2, and never faster than twice the
         // body's own speed, so no frame shows a jump.
@@ -395,7 +402,7 @@ mod tests {
         let mut w = RemoteWorld::new(cfg);
         w.apply(&frame(0, 100, true, &[(1, [0.0; 3], [1.0, 0.0, 0.0])]));
         let d = w.draw_one(EntityId(1), 108.0).unwrap();
-        assert!(d.extrapolated && (d.position[0] - 8.0 / 64.0).abs() < 1e-12);
+        assert!(d.extrapolated && !d.steady && (d.position[0] - 8.0 / 64.0).abs() < 1e-12);
         assert!((x_at(&w, 1, 200.0) - 16.0 / 64.0).abs() < 1e-12, "held at the bound");
         assert!(!w.draw_one(EntityId(1), 99.0).unwrap().extrapolated);
     }

@@ -296,10 +296,8 @@ fn state_frame() -> impl Strategy<Value = ServerMessage> {
                         offset_m: [0.0; 3],
                         fixed: owner.is_none(),
                         rotation: (shape % 2 == 0).then_some([0.0, 0.382_683_43, 0.0, 0.923_879_5]),
-                        local_shape: (shape < 3).then(|| ShapeSpec::Capsule {
-                            half_height_m: half[1],
-                            radius_m: half[0],
-                        }),
+                        local_shape: (shape < 3)
+                            .then(|| ShapeSpec::Capsule { half_height_m: half[1], radius_m: half[0] }),
                     })
                     .collect(),
                 moved: moved.into_iter().map(|(e, p, v, a)| BodyMotion(e, f3(p), f3(v), a)).collect(),
