@@ -154,7 +154,7 @@ fn play(a: &Args) -> Result<(), Box<dyn std::error::Error>> {
         std::thread::sleep(frame);
     }
     if let Some(e) = game.prediction_problem() {
-        return Err(format!("prediction: {e}").into());
+        return Err(format!("prediction: {e}; or play without it: --no-predict").into());
     }
     let s = game.stats();
     eprintln!(
