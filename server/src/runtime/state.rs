@@ -74,7 +74,8 @@ pub struct Capture {
     pub asleep: Vec<bool>,
     /// Sleep countdowns.
     pub still: Vec<u16>,
-    /// The contact cache: what the core carries between ticks for touching pairs.
+    /// The contact cache's pairs that involve a watcher's avatar (what the core carries between
+    /// ticks for them).
     pub touching: Vec<Touch>,
     /// Static geometry and terrain.
     pub statics: Arc<StaticWorld>,
@@ -88,6 +89,9 @@ impl Capture {
     /// Copies what moves out of `world`.
     pub fn of(world: &impact_core::sim::World, watchers: Vec<Watcher>) -> Capture {
         let b = &world.bodies;
+        let mut avatars: Vec<EntityId> = watchers.iter().map(|v| v.avatar).collect();
+        avatars.sort_unstable();
+        let watched = |e: EntityId| avatars.binary_search(&e).is_ok();
         Capture {
             tick: world.tick,
             table: b.table(),
@@ -95,7 +99,8 @@ impl Capture {
             vel: b.vel.clone(),
             asleep: b.asleep.clone(),
             still: b.still_ticks.clone(),
-            touching: world.touching.clone(),
+            // Only the watchers' avatars' contacts are sent: copy those, not the whole cache.
+            touching: world.touching.iter().filter(|t| watched(t.a) || watched(t.b)).copied().collect(),
             statics: world.statics.clone(),
             config: world.config.clone(),
             watchers,
