@@ -1,27 +1,30 @@
 //! The load generator: many simulated clients over a few Zenoh sessions, each one a player
 //! behind a network path with latency, jitter and loss.
 //!
-//! Every client declares its presence, waits for its welcome (its avatar and the server's tick),
-//! then acts at `input_hz`: it stamps each input with the tick it believes the server is at (its
-//! own clock since the welcome, which it saw one downlink latency late), and sends it through the
-//! uplink delay line, so inputs reach the server late and exercise rollback. Everything the server
-//! sends back passes the downlink delay line before the client sees it. Each client keeps its
-//! view of its event stream (events, then corrections) and checks it against every confirmed
-//! tick.
+//! Every client is an [`impact_client::Session`], the library a game uses: it declares its
+//! presence, waits for its welcome, syncs its clock with the server's, then acts at `input_hz`
+//! (inputs stamped ahead by the lead the acks recommend, or behind, each carrying the
+//! unanswered ones before it). What it sends passes the uplink delay line, what the server sends
+//! back the downlink one. `predict` of them are game clients: they read their state stream,
+//! predict their avatar, draw at 60 frames a second, and twice a second draw their remote world
+//! at one tick the server is asked about (`query/state?tick=T`): the prediction and
+//! interpolation errors. Beside each session the load test keeps what the server owes it: an
+//! answer per delivered input not yet accepted, never two acks for one seq.
 //!
 //! Clients share `sessions` Zenoh sessions (default one per 100 clients): a session per client
 //! would cost a TCP connection and its buffers each, for nothing the test measures, and a single
 //! session would serialise every client's traffic through one link.
 
-use crate::report::Report;
+use crate::report::{quantile, Report};
 use crate::timing::{Margins, Timing};
 use hdrhistogram::Histogram;
-use impact_client::clock::Clock;
-use impact_client::events::EventView;
-use impact_client::inputs::{Outbox, Sent};
 use impact_client::netsim::{DelayLine, Link, Rng};
+use impact_client::predict::{PredictConfig, Predictor};
+use impact_client::remote::DrawnBody;
+use impact_client::transport::decode_server;
+use impact_client::{Outcome, Session, SessionConfig, Status};
 use impact_protocol::{
-    keys, Action, ClientId, ClientInput, ClientMessage, Encoding, EntityId, RejectReason, ServerMessage, WorldId,
+    keys, Action, ClientId, ClientMessage, Encoding, EntityId, RejectReason, ServerMessage, Tick, WorldId,
 };
 use std::collections::BTreeMap;
 use std::io::{IsTerminal, Write};
@@ -89,6 +92,11 @@ pub struct LoadConfig {
     pub faults: Faults,
     /// Subscribe each client to its state stream (`client/{id}/state`) and count its bytes.
     pub state: bool,
+    /// Game clients among them (spread evenly over the ids): they read their state streams,
+    /// predict their avatars and draw (see the module docs). 0: none.
+    pub predict: u32,
+    /// The scene the server runs, for the game clients' prediction (needed when `predict > 0`).
+    pub scene: Option<impact_core::scene::Scene>,
 }
 
 /// Faults injected into a load run: the fault simulation of `tests/tests/faults.rs` (in the
@@ -146,48 +154,51 @@ fn signal(pid: u32, stop: bool) {
 
 enum Inbound {
     Msg(usize, ServerMessage),
+    Malformed(usize),
     Stats(impact_protocol::ServerStats),
 }
 
+/// One simulated player: an [`impact_client::Session`], the library a game uses, with what the
+/// load test checks about its answers beside it.
 struct Client {
     id: ClientId,
     behaviour: Behaviour,
-    avatar: Option<EntityId>,
-    clock: Clock,
-    /// Sequence numbers, and the inputs sent awaiting an answer (bounded).
-    outbox: Outbox,
+    session: Session,
+    /// A game client: decodes its state stream, predicts its avatar, draws at 60 frames a
+    /// second (`--predict`).
+    game: bool,
+    welcomed: bool,
+    /// When it started playing, and when it acts and draws next.
+    playing_since: Option<Instant>,
     next_action: Instant,
-    /// Answers owed by the server, per seq: one per delivery (two for a duplicated input).
+    next_frame: Instant,
+    /// The highest seq delivered to the server: seqs past it are delivered for the first time
+    /// (messages are delivered in order, and each carries its newest input last).
+    delivered: u32,
+    /// Answers owed by the server, per seq: one per delivery of an input not yet accepted (a
+    /// copy of an accepted input is skipped without an answer; a rejected one is answered again).
     owed: BTreeMap<u32, u32>,
-    /// Seqs acked, kept only while duplicates are injected: a second ack is a replay accepted, and
-    /// a copy delivered after its ack is owed no answer.
+    /// Seqs acked: a second ack is an input applied twice.
     acked: std::collections::BTreeSet<u32>,
-    view: EventView,
     margins: Margins,
-    corrections: u64,
+    /// Accepted inputs sent in the first two seconds of play, and how many of them were late;
+    /// the same after.
+    early: (u64, u64),
+    steady: (u64, u64),
 }
 
-impl Client {
-    fn new(id: ClientId, behaviour: Behaviour, next_action: Instant) -> Client {
-        Client {
-            id,
-            behaviour,
-            avatar: None,
-            clock: Clock::new(),
-            outbox: Outbox::default(),
-            next_action,
-            owed: BTreeMap::new(),
-            acked: Default::default(),
-            view: EventView::default(),
-            margins: Margins::default(),
-            corrections: 0,
-        }
-    }
+/// Inputs sent this long after play began are "early": the clock has only the sync's estimate.
+const EARLY: Duration = Duration::from_secs(2);
 
-    /// An ack of `seq`: nothing more is owed for it, however many copies were delivered (a copy
-    /// of an accepted input is skipped without an answer); false when none was owed.
+/// A game client draws this often.
+const FRAME: Duration = Duration::from_nanos(16_666_667);
+
+impl Client {
+    /// An ack of `seq`: nothing more is owed for it, however many copies were delivered; false
+    /// when it was acked before (applied twice).
     fn accepted(&mut self, seq: u32) -> bool {
-        self.owed.remove(&seq).is_some()
+        self.owed.remove(&seq);
+        self.acked.insert(seq)
     }
 
     /// Counts a reject of `seq` (a rejected input does not use up its seq, so each copy of it is
@@ -205,17 +216,39 @@ impl Client {
             None => false,
         }
     }
+
+    /// A message carrying `seqs` reached the server.
+    fn delivered(&mut self, seqs: &[u32]) -> u64 {
+        let mut new = 0;
+        for &seq in seqs {
+            if !self.acked.contains(&seq) {
+                *self.owed.entry(seq).or_insert(0) += 1;
+            }
+            if seq > self.delivered {
+                new += 1;
+            }
+        }
+        self.delivered = self.delivered.max(seqs.iter().copied().max().unwrap_or(0));
+        new
+    }
 }
 
-fn act(c: &mut Client, rng: &mut Rng, timing: Timing, now: Instant) -> Option<ClientInput> {
-    let entity = c.avatar?;
-    let (tick, view) = c.clock.stamp(timing == Timing::Ahead, now)?;
-    let seq = c.outbox.next_seq();
+/// The seqs a message carries.
+fn seqs(msg: &ClientMessage) -> Vec<u32> {
+    match msg {
+        ClientMessage::Input(i) => vec![i.seq],
+        ClientMessage::Inputs(b) => b.inputs.iter().map(|i| i.seq).collect(),
+        ClientMessage::Ping(_) | ClientMessage::FullFrame(_) => Vec::new(),
+    }
+}
+
+/// What a player does next (`t`: seconds since the load began).
+fn action(behaviour: Behaviour, entity: EntityId, rng: &mut Rng, t: f64) -> Action {
     let dir = |rng: &mut Rng| {
         let a = std::f64::consts::TAU * rng.unit();
         [a.cos(), 0.3 * (rng.unit() - 0.5), a.sin()]
     };
-    let action = match c.behaviour {
+    match behaviour {
         Behaviour::Wander => {
             let d = dir(rng);
             let s = 2.0 + 6.0 * rng.unit();
@@ -223,7 +256,6 @@ fn act(c: &mut Client, rng: &mut Rng, timing: Timing, now: Instant) -> Option<Cl
         }
         Behaviour::Chase => {
             // The goal circles the middle of the world; players head roughly for it.
-            let t = now.elapsed().as_secs_f64() + f64::from(seq) * 0.1;
             let goal = [10.0 * t.cos(), 10.0, 10.0 * t.sin()];
             let jitter = dir(rng);
             Action::SetVelocity {
@@ -241,10 +273,7 @@ fn act(c: &mut Client, rng: &mut Rng, timing: Timing, now: Instant) -> Option<Cl
                 Action::SetVelocity { entity, velocity: [d[0] * 5.0, d[1] * 5.0, d[2] * 5.0] }
             }
         }
-    };
-    // Behind mode stamps the view tick itself; saying so again would change nothing.
-    let view_tick = (timing == Timing::Ahead).then_some(view);
-    Some(ClientInput { client: c.id, seq, tick, view_tick, actions: vec![action] })
+    }
 }
 
 /// The sessions the clients share, or with `users` one per client, authenticated as its user.
@@ -301,7 +330,7 @@ impl Wiring {
             tokens: Vec::new(),
         };
         for (k, c) in clients.iter().enumerate() {
-            w.subscribe_client(cfg, k, c.id)?;
+            w.subscribe_client(cfg, k, c)?;
         }
         let inbox = w.inbox.clone();
         let stats = w.sessions[0]
@@ -322,32 +351,44 @@ impl Wiring {
         &self.sessions[k % self.sessions.len()]
     }
 
-    fn subscribe_client(&mut self, cfg: &LoadConfig, k: usize, id: ClientId) -> anyhow::Result<()> {
-        for pattern in [keys::CLIENT_ACK, keys::CLIENT_EVENTS] {
+    fn subscribe_client(&mut self, cfg: &LoadConfig, k: usize, c: &Client) -> anyhow::Result<()> {
+        let mut decoded = vec![(keys::CLIENT_ACK, false), (keys::CLIENT_EVENTS, false)];
+        // A game client reads its state stream; the others (with `state`) only count its bytes.
+        if c.game {
+            decoded.push((keys::CLIENT_STATE, true));
+        }
+        for (pattern, state) in decoded {
             let inbox = self.inbox.clone();
             let dropped = self.inbox_dropped.clone();
+            let counts = state.then(|| (self.state_bytes.clone(), self.state_frames.clone()));
             let sub = self
                 .session(k)
-                .declare_subscriber(pattern.key(&cfg.world, Some(id)))
+                .declare_subscriber(pattern.key(&cfg.world, Some(c.id)))
                 .callback(move |sample| {
-                    if let Ok(msg) = crate::net::decode_server(&sample) {
-                        let mut q = inbox.lock().unwrap_or_else(|e| e.into_inner());
-                        if q.len() < INBOX_MAX {
-                            q.push((Instant::now(), Inbound::Msg(k, msg)));
-                        } else {
-                            dropped.fetch_add(1, Relaxed);
-                        }
+                    if let Some((bytes, frames)) = &counts {
+                        bytes.fetch_add(sample.payload().len() as u64, Relaxed);
+                        frames.fetch_add(1, Relaxed);
+                    }
+                    let item = match crate::net::decode_server(&sample) {
+                        Ok(msg) => Inbound::Msg(k, msg),
+                        Err(_) => Inbound::Malformed(k),
+                    };
+                    let mut q = inbox.lock().unwrap_or_else(|e| e.into_inner());
+                    if q.len() < INBOX_MAX {
+                        q.push((Instant::now(), item));
+                    } else {
+                        dropped.fetch_add(1, Relaxed);
                     }
                 })
                 .wait()
                 .map_err(|e| anyhow::anyhow!("subscribing: {e}"))?;
             self.subscribers.push(sub);
         }
-        if cfg.state {
+        if cfg.state && !c.game {
             let (bytes, frames) = (self.state_bytes.clone(), self.state_frames.clone());
             let sub = self
                 .session(k)
-                .declare_subscriber(keys::CLIENT_STATE.key(&cfg.world, Some(id)))
+                .declare_subscriber(keys::CLIENT_STATE.key(&cfg.world, Some(c.id)))
                 .callback(move |sample| {
                     bytes.fetch_add(sample.payload().len() as u64, Relaxed);
                     frames.fetch_add(1, Relaxed);
@@ -389,12 +430,24 @@ impl Wiring {
     }
 }
 
+/// A world drawn by every game client at one tick, awaiting the server's positions at that tick
+/// (`query/state?tick=T`): the interpolation error.
+struct Check {
+    tick: Tick,
+    /// What each game client drew at `tick`.
+    drawn: Vec<Vec<DrawnBody>>,
+    replies: zenoh::handlers::FifoChannelHandler<zenoh::query::Reply>,
+}
+
+/// How often the drawn worlds are checked against the server's.
+const CHECK_EVERY: Duration = Duration::from_millis(500);
+
 /// The run loop's state: the clients, both delay lines, and the figures gathered.
 struct Run<'a> {
     cfg: &'a LoadConfig,
     clients: Vec<Client>,
     rng: Rng,
-    up: DelayLine<(usize, u32, Vec<u8>)>,
+    up: DelayLine<(usize, Vec<u32>, Vec<u8>)>,
     down: DelayLine<Inbound>,
     /// Input round trips, microseconds.
     latency: Histogram<u64>,
@@ -409,21 +462,58 @@ struct Run<'a> {
     load_end: Instant,
     server_stopped: bool,
     input_keys: Vec<String>,
+    checks: Vec<Check>,
+    next_check: Instant,
+    /// Remote bodies as drawn minus as the server had them, m; and over the steady ones.
+    interpolation: Vec<f64>,
+    interpolation_steady: Vec<f64>,
+}
+
+/// Which clients are game clients: `predict` of them, spread evenly over the ids (so over the
+/// behaviours too).
+fn is_game(k: usize, clients: u32, predict: u32) -> bool {
+    (k as u64 * u64::from(predict)) % u64::from(clients.max(1)) < u64::from(predict)
+}
+
+/// The clients, each a session (a game client's predicting from `cfg.scene`).
+fn clients(cfg: &LoadConfig, start: Instant) -> anyhow::Result<Vec<Client>> {
+    let mut out = Vec::with_capacity(cfg.clients as usize);
+    for k in 0..cfg.clients as usize {
+        let id = ClientId(cfg.first_client + k as u32);
+        let behaviour = match cfg.behaviour {
+            Behaviour::Mixed => [Behaviour::Wander, Behaviour::Chase, Behaviour::Shooter][k % 3],
+            b => b,
+        };
+        let game = is_game(k, cfg.clients, cfg.predict);
+        let mut session = Session::new(SessionConfig { ahead: cfg.timing == Timing::Ahead, ..SessionConfig::new(id) });
+        if game {
+            let scene =
+                cfg.scene.as_ref().ok_or_else(|| anyhow::anyhow!("predicting needs the scene the server runs"))?;
+            session.predict_with(Predictor::new(scene, id, PredictConfig::default())?);
+        }
+        out.push(Client {
+            id,
+            behaviour,
+            session,
+            game,
+            welcomed: false,
+            playing_since: None,
+            next_action: start,
+            next_frame: start,
+            delivered: 0,
+            owed: BTreeMap::new(),
+            acked: Default::default(),
+            margins: Margins::default(),
+            early: (0, 0),
+            steady: (0, 0),
+        });
+    }
+    Ok(out)
 }
 
 /// Runs the load and returns its report.
 pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
-    let start = Instant::now();
-    let clients: Vec<Client> = (0..cfg.clients as usize)
-        .map(|k| {
-            let id = ClientId(cfg.first_client + k as u32);
-            let behaviour = match cfg.behaviour {
-                Behaviour::Mixed => [Behaviour::Wander, Behaviour::Chase, Behaviour::Shooter][k % 3],
-                b => b,
-            };
-            Client::new(id, behaviour, start)
-        })
-        .collect();
+    let clients = clients(cfg, Instant::now())?;
     let mut wiring = Wiring::connect(cfg, &clients)?;
     wiring.declare_presence(cfg, &clients)?;
     let mut run = Run::new(cfg, clients, wiring.sessions.len())?;
@@ -443,9 +533,8 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
             state_at_end = Some(wiring.state_counts());
         }
         run.downlink(&wiring.inbox, now);
-        if now < run.load_end {
-            run.act(now);
-        }
+        run.play(now);
+        run.check(&wiring, now);
         run.uplink(&wiring, now);
         if last_progress.elapsed() >= Duration::from_secs(1) {
             last_progress = Instant::now();
@@ -474,6 +563,11 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
     Ok(r)
 }
 
+/// Distance between two points, m.
+fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
+    (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt()
+}
+
 impl Run<'_> {
     fn new(cfg: &LoadConfig, clients: Vec<Client>, sessions: usize) -> anyhow::Result<Run<'_>> {
         let load_start = Instant::now();
@@ -497,6 +591,10 @@ impl Run<'_> {
             load_start,
             load_end: load_start + cfg.duration,
             server_stopped: false,
+            checks: Vec::new(),
+            next_check: load_start + CHECK_EVERY,
+            interpolation: Vec::new(),
+            interpolation_steady: Vec::new(),
         })
     }
 
@@ -510,13 +608,14 @@ impl Run<'_> {
         let cut = self.cfg.faults.partitioned(now.saturating_duration_since(self.load_start));
         while let Some(m) = if cut { None } else { self.down.pop_due(now) } {
             match m {
-                Inbound::Stats(s) => self.on_stats(&s, now),
+                Inbound::Stats(s) => self.on_stats(s, now),
                 Inbound::Msg(k, msg) => self.on_message(k, msg, now),
+                Inbound::Malformed(k) => self.clients[k].session.malformed(),
             }
         }
     }
 
-    fn on_stats(&mut self, s: &impact_protocol::ServerStats, now: Instant) {
+    fn on_stats(&mut self, s: impact_protocol::ServerStats, now: Instant) {
         let r = &mut self.r;
         r.server_overruns = s.overruns;
         r.server_queue_depth_max = r.server_queue_depth_max.max(s.queue_depth_max);
@@ -531,95 +630,131 @@ impl Run<'_> {
         }
         // Once a second every client hears the server's tick, even one that no event concerns.
         for c in self.clients.iter_mut() {
-            r.clock_resyncs += u64::from(c.clock.observe(s.tick, now));
+            c.session.receive(ServerMessage::Stats(s.clone()), now);
         }
     }
 
+    /// What the load test checks about a message, then the session takes it.
     fn on_message(&mut self, k: usize, msg: ServerMessage, now: Instant) {
         let (r, c) = (&mut self.r, &mut self.clients[k]);
-        match msg {
-            ServerMessage::Welcome(w) => {
-                if c.avatar.is_none() && w.avatar.is_some() {
-                    r.clients_welcomed += 1;
-                }
-                c.avatar = w.avatar;
-                c.clock.anchor(w.tick, w.tick_hz, now);
-                // Spread the clients' actions over one period.
-                c.next_action = now + self.period.mul_f64(k as f64 / self.cfg.clients.max(1) as f64);
-            }
-            ServerMessage::Ack(a) => {
-                r.clock_resyncs += u64::from(c.clock.observe(a.server_tick, now));
-                c.margins.record(a.margin_ticks);
-                c.clock.recommend(a.lead_ticks);
+        match &msg {
+            ServerMessage::Ack(a) if a.client == c.id => {
+                // A second ack of one seq: an input applied twice.
                 r.answers_unexpected += u64::from(!c.accepted(a.seq));
-                if self.cfg.faults.duplicate > 0.0 && !c.acked.insert(a.seq) {
-                    r.answers_unexpected += 1; // a duplicate delivery was accepted
-                }
-                if let Some(sent) = c.outbox.answered(a.seq) {
-                    r.acks += 1;
-                    let _ = self.latency.record((now - sent.at).as_micros().max(1) as u64);
-                }
             }
-            ServerMessage::Reject(j) => {
-                if let Some(seq) = j.seq {
-                    let view = c.outbox.answered(seq).and_then(|s| s.view);
-                    if let (RejectReason::Future, Some(t), Some(v), Some(n)) = (j.reason, j.tick, view, j.newest_tick) {
-                        c.clock.back_off(t, v, n);
+            ServerMessage::Reject(j) if j.client == c.id => {
+                // An accepted input whose entity went away before its tick was re-simulated is
+                // told so by a second message (PROTOCOL.md); a copy that arrives once its seq
+                // has left the window is refused as a duplicate.
+                let expected = match j.seq {
+                    Some(seq) => {
+                        c.answered(seq)
+                            || (c.acked.contains(&seq)
+                                && matches!(
+                                    j.reason,
+                                    RejectReason::UnknownEntity | RejectReason::NotOwner | RejectReason::Duplicate
+                                ))
                     }
-                    // An accepted input whose entity went away before its tick was re-simulated
-                    // is told so by a second message (PROTOCOL.md).
-                    let after_ack = matches!(j.reason, RejectReason::UnknownEntity | RejectReason::NotOwner);
-                    r.answers_unexpected += u64::from(!c.answered(seq) && !after_ack);
-                } else {
-                    r.answers_unexpected += 1;
-                }
+                    None => false,
+                };
+                r.answers_unexpected += u64::from(!expected);
                 *r.rejects.entry(j.reason.name().to_string()).or_insert(0) += 1;
             }
-            ServerMessage::Events(b) => {
-                r.clock_resyncs += u64::from(c.clock.observe(b.tick, now));
-                r.events_received += b.events.len() as u64;
-                c.view.events(&b);
-            }
             ServerMessage::Corrections(cb) => {
-                r.corrections += 1;
-                c.corrections += 1;
-                if let Some(t) = c.clock.server_tick(now) {
+                if let Some(t) = c.session.clock().server_tick(now) {
                     let _ = self.depth.record(u64::from(t.0.saturating_sub(cb.tick.0)).max(1));
                 }
-                c.view.correct(&cb);
-            }
-            ServerMessage::Confirmed(b) => {
-                c.view.confirm(&b);
             }
             _ => {}
         }
+        c.session.receive(msg, now);
+        if !c.welcomed && c.session.avatar().is_some() {
+            c.welcomed = true;
+            r.clients_welcomed += 1;
+        }
     }
 
-    /// Clients whose turn it is act; their inputs enter the uplink delay line (some twice, when
-    /// duplicates are injected).
-    fn act(&mut self, now: Instant) {
+    /// Every client: act when its turn came (once playing; its inputs spread over one period),
+    /// draw when a frame is due (game clients), note its answers, and hand what it sends to the
+    /// uplink delay line (some twice, when duplicates are injected).
+    fn play(&mut self, now: Instant) {
         let cfg = self.cfg;
+        let clients = self.clients.len().max(1) as f64;
+        let t = now.saturating_duration_since(self.load_start).as_secs_f64();
         for (k, c) in self.clients.iter_mut().enumerate() {
-            if c.next_action > now {
-                continue;
+            let s = &mut c.session;
+            if s.status() == Status::Playing && c.playing_since.is_none() {
+                c.playing_since = Some(now);
+                c.next_action = now + self.period.mul_f64(k as f64 / clients);
             }
-            c.next_action += self.period;
-            let Some(input) = act(c, &mut self.rng, cfg.timing, now) else { continue };
-            let (seq, sent) = (input.seq, Sent { at: now, tick: input.tick, view: input.view_tick });
-            let Ok(bytes) = impact_protocol::encode(&ClientMessage::Input(input), cfg.encoding) else { continue };
-            self.r.inputs_sent += 1;
-            let twice = self.rng.unit() < cfg.faults.duplicate;
-            if self.up.send(now, &cfg.uplink, &mut self.rng, (k, seq, bytes.clone())) {
-                c.outbox.sent(seq, sent);
-                if twice && self.up.send(now, &Link { loss: 0.0, ..cfg.uplink }, &mut self.rng, (k, seq, bytes)) {
+            if let (Some(entity), true) = (s.avatar(), c.playing_since.is_some() && now < self.load_end) {
+                if c.next_action <= now {
+                    c.next_action += self.period;
+                    if s.input(vec![action(c.behaviour, entity, &mut self.rng, t)], now).is_ok() {
+                        self.r.inputs_sent += 1;
+                    }
+                }
+            }
+            if c.game && c.next_frame <= now {
+                c.next_frame = (c.next_frame + FRAME).max(now);
+                let _ = s.draw_avatar(now);
+            }
+            for a in s.take_answers() {
+                let _ = self.latency.record(a.round_trip.as_micros().max(1) as u64);
+                let Outcome::Accepted { margin_ticks, .. } = a.outcome else { continue };
+                self.r.acks += 1;
+                c.margins.record(margin_ticks);
+                let early = c.playing_since.is_some_and(|p| a.sent.saturating_duration_since(p) < EARLY);
+                let share = if early { &mut c.early } else { &mut c.steady };
+                share.0 += 1;
+                share.1 += u64::from(margin_ticks < 0);
+            }
+            while let Some(msg) = s.poll_transmit(now) {
+                let Ok(bytes) = impact_protocol::encode(&msg, cfg.encoding) else { continue };
+                let seqs = seqs(&msg);
+                let twice = !seqs.is_empty() && self.rng.unit() < cfg.faults.duplicate;
+                if self.up.send(now, &cfg.uplink, &mut self.rng, (k, seqs.clone(), bytes.clone()))
+                    && twice
+                    && self.up.send(now, &Link { loss: 0.0, ..cfg.uplink }, &mut self.rng, (k, seqs, bytes))
+                {
                     self.r.inputs_duplicated += 1;
                 }
             }
         }
     }
 
+    /// Twice a second every game client draws its remote world at one whole tick and the server
+    /// is asked where everything was at that tick; answers that came are compared.
+    fn check(&mut self, wiring: &Wiring, now: Instant) {
+        let mut interpolation = std::mem::take(&mut self.interpolation);
+        let mut steady = std::mem::take(&mut self.interpolation_steady);
+        self.checks.retain(|c| !c.compare(&mut interpolation, &mut steady));
+        (self.interpolation, self.interpolation_steady) = (interpolation, steady);
+        if now < self.next_check || now >= self.load_end || self.cfg.predict == 0 {
+            return;
+        }
+        self.next_check += CHECK_EVERY;
+        let render = self.clients.iter().filter(|c| c.game).find_map(|c| c.session.render_tick(now));
+        let Some(tick) = render.map(|r| Tick(r.floor().max(0.0) as u32)) else { return };
+        let drawn = self
+            .clients
+            .iter()
+            .filter(|c| c.game && c.session.stats().state_frames > 0)
+            .filter_map(|c| c.session.remote())
+            .map(|remote| {
+                let mut v = Vec::new();
+                remote.draw(f64::from(tick.0), &mut v);
+                v
+            })
+            .collect();
+        let key = format!("{}?tick={}", keys::QUERY_STATE.key(&self.cfg.world, None), tick.0);
+        if let Ok(replies) = wiring.sessions[0].get(key).timeout(Duration::from_secs(2)).wait() {
+            self.checks.push(Check { tick, drawn, replies });
+        }
+    }
+
     /// Faults first: a partition holds both lines (they are FIFO, so holding is delaying); a
-    /// stall stops the server process. Then the inputs due are put.
+    /// stall stops the server process. Then the messages due are put.
     fn uplink(&mut self, wiring: &Wiring, now: Instant) {
         let faults = &self.cfg.faults;
         let since = now.saturating_duration_since(self.load_start);
@@ -632,15 +767,10 @@ impl Run<'_> {
                 self.r.server_stalls += u64::from(want);
             }
         }
-        while let Some((k, seq, bytes)) = if cut { None } else { self.up.pop_due(now) } {
+        while let Some((k, seqs, bytes)) = if cut { None } else { self.up.pop_due(now) } {
             let put = wiring.session(k).put(&self.input_keys[k], bytes).encoding(self.cfg.encoding.zenoh_tag());
             if put.wait().is_ok() {
-                self.r.inputs_delivered += 1;
-                // A copy of an input already accepted is owed no answer.
-                let c = &mut self.clients[k];
-                if !c.acked.contains(&seq) {
-                    *c.owed.entry(seq).or_insert(0) += 1;
-                }
+                self.r.inputs_delivered += self.clients[k].delivered(&seqs);
             }
         }
     }
@@ -648,71 +778,124 @@ impl Run<'_> {
     fn progress_line(&self) -> String {
         let r = &self.r;
         format!(
-            "  {:5.1} s | welcomed {}/{} | inputs {} | acks {} | p99 {:.1} ms | events {} | corrections {} | views ok {} bad {}",
+            "  {:5.1} s | welcomed {}/{} | inputs {} | acks {} | p99 {:.1} ms | corrections {} | views ok {} bad {}",
             self.load_start.elapsed().as_secs_f64(),
             r.clients_welcomed,
             self.cfg.clients,
             r.inputs_sent,
             r.acks,
             self.latency.value_at_quantile(0.99) as f64 / 1000.0,
-            r.events_received,
-            r.corrections,
-            self.clients.iter().map(|c| c.view.matched).sum::<u64>(),
-            self.clients.iter().map(|c| c.view.mismatched).sum::<u64>()
+            self.clients.iter().map(|c| c.session.stats().corrections).sum::<u64>(),
+            self.clients.iter().map(|c| c.session.events().matched).sum::<u64>(),
+            self.clients.iter().map(|c| c.session.events().mismatched).sum::<u64>()
         )
     }
 
     /// The report: what was counted, with the quantiles, rates and per-client figures drawn from
     /// it. `state` is the state streams' (bytes, frames) at the end of the load.
-    fn report(self, state: (u64, u64)) -> Report {
+    fn report(mut self, state: (u64, u64)) -> Report {
         let cfg = self.cfg;
         let (latency, depth, server_ticks, clients) = (&self.latency, &self.depth, &self.server_ticks, &self.clients);
         let mut r = self.r;
-        r.inputs_lost_in_network = self.up.lost;
+        let secs = cfg.duration.as_secs_f64().max(1e-9);
+        r.inputs_lost_in_network = r.inputs_sent.saturating_sub(r.inputs_delivered);
+        r.messages_lost_in_network = self.up.lost;
         r.inputs_unanswered = clients.iter().map(|c| c.owed.values().map(|&n| u64::from(n)).sum::<u64>()).sum();
         r.latency_ms_p50 = latency.value_at_quantile(0.5) as f64 / 1000.0;
         r.latency_ms_p99 = latency.value_at_quantile(0.99) as f64 / 1000.0;
         r.latency_ms_max = latency.max() as f64 / 1000.0;
-        r.events_per_s = r.events_received as f64 / cfg.duration.as_secs_f64().max(1e-9);
-        r.corrections_per_s = r.corrections as f64 / cfg.duration.as_secs_f64().max(1e-9);
+        for c in clients {
+            let s = c.session.stats();
+            r.events_received += s.events;
+            r.corrections += s.corrections;
+            r.clock_resyncs += s.clock_resyncs;
+            r.input_copies_sent += s.copies_sent;
+            r.malformed += s.malformed;
+            r.unmatched_answers += s.unmatched_answers;
+        }
+        r.events_per_s = r.events_received as f64 / secs;
+        r.corrections_per_s = r.corrections as f64 / secs;
         r.correction_depth_p50 = depth.value_at_quantile(0.5) as f64;
         r.correction_depth_max = depth.max() as f64;
         r.correction_depth_p99 = depth.value_at_quantile(0.99) as f64;
         let (bytes, frames) = state;
         r.state_frames = frames;
-        r.state_bytes_per_client_s =
-            bytes as f64 / (f64::from(cfg.clients.max(1)) * cfg.duration.as_secs_f64().max(1e-9));
+        let streams = if cfg.state { cfg.clients } else { cfg.predict.min(cfg.clients) };
+        r.state_bytes_per_client_s = bytes as f64 / (f64::from(streams.max(1)) * secs);
         r.server_ticks_measured = server_ticks.len();
         if !server_ticks.is_empty() {
             r.server_tick_ms_p50 = server_ticks.value_at_quantile(0.5) as f64 / 1e3;
             r.server_tick_ms_p99 = server_ticks.value_at_quantile(0.99) as f64 / 1e3;
             r.server_tick_ms_max = server_ticks.max() as f64 / 1e3;
         }
-        r.server_rollbacks_per_s = r.server_rollbacks as f64 / cfg.duration.as_secs_f64().max(1e-9);
+        r.server_rollbacks_per_s = r.server_rollbacks as f64 / secs;
         r.timing = Some(cfg.timing);
         let mut all = Margins::default();
+        let (mut early, mut steady) = ((0, 0), (0, 0));
         for c in clients {
             all.merge(&c.margins);
+            early = (early.0 + c.early.0, early.1 + c.early.1);
+            steady = (steady.0 + c.steady.0, steady.1 + c.steady.1);
             r.per_client.push(crate::report::ClientTiming {
                 client: c.id.0,
                 margin_ticks_p1: c.margins.quantile(0.01),
                 margin_ticks_p50: c.margins.quantile(0.5),
                 margin_ticks_p99: c.margins.quantile(0.99),
                 rollbacks_caused: c.margins.late(),
-                corrections: c.corrections,
+                corrections: c.session.stats().corrections,
             });
         }
+        let share = |(n, late): (u64, u64)| (n > 0).then(|| late as f64 / n as f64);
+        r.late_share_first_2s = share(early);
+        r.late_share_steady = share(steady);
+        r.acked_first_2s = early.0;
         r.margin_ticks_p1 = all.quantile(0.01);
         r.margin_ticks_p50 = all.quantile(0.5);
         r.margin_ticks_p99 = all.quantile(0.99);
         r.rollbacks_caused = all.late();
-        r.rollbacks_caused_per_s = r.rollbacks_caused as f64 / cfg.duration.as_secs_f64().max(1e-9);
-        r.views_matched = clients.iter().map(|c| c.view.matched).sum();
-        r.views_mismatched = clients.iter().map(|c| c.view.mismatched).sum();
+        r.rollbacks_caused_per_s = r.rollbacks_caused as f64 / secs;
+        r.views_matched = clients.iter().map(|c| c.session.events().matched).sum();
+        r.views_mismatched = clients.iter().map(|c| c.session.events().mismatched).sum();
+        r.prediction = crate::report::Prediction::over(clients.iter().filter(|c| c.game).map(|c| &c.session));
+        r.prediction.interpolation_samples = self.interpolation.len() as u64;
+        r.prediction.interpolation_error_m_p50 = quantile(&mut self.interpolation, 0.5);
+        r.prediction.interpolation_error_m_p99 = quantile(&mut self.interpolation, 0.99);
+        r.prediction.interpolation_steady_samples = self.interpolation_steady.len() as u64;
+        r.prediction.interpolation_steady_m_p99 = quantile(&mut self.interpolation_steady, 0.99);
         let bucket = 5_000u64;
         let top = latency.max().div_ceil(bucket).min(400);
         r.latency_histogram =
             (1..=top).map(|b| (b as f64 * 5.0, latency.count_between((b - 1) * bucket + 1, b * bucket))).collect();
         r
+    }
+}
+
+impl Check {
+    /// Compares what was drawn with the server's answer once it came (true: done).
+    fn compare(&self, errors: &mut Vec<f64>, steady: &mut Vec<f64>) -> bool {
+        let reply = match self.replies.try_recv() {
+            Ok(Some(reply)) => reply,
+            Ok(None) => return false,
+            Err(_) => return true,
+        };
+        let Ok(ServerMessage::Snapshot(s)) =
+            reply.result().map_err(|_| ()).and_then(|s| decode_server(s).map_err(|_| ()))
+        else {
+            return true;
+        };
+        if s.tick != self.tick {
+            return true;
+        }
+        let truth: BTreeMap<_, _> = s.bodies.iter().map(|b| (b.entity, b.position)).collect();
+        for d in self.drawn.iter().flatten() {
+            if let Some(p) = truth.get(&d.entity) {
+                let e = distance(d.position, *p);
+                errors.push(e);
+                if d.steady {
+                    steady.push(e);
+                }
+            }
+        }
+        true
     }
 }

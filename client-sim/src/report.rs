@@ -16,21 +16,31 @@ pub struct Report {
     pub clients_welcomed: u32,
     /// Inputs the clients produced.
     pub inputs_sent: u64,
-    /// Inputs dropped by the simulated uplink loss.
+    /// Inputs none of whose copies reached the server (the simulated uplink loss took every
+    /// message that carried them).
     pub inputs_lost_in_network: u64,
-    /// Inputs delivered to the server.
+    /// Messages the simulated uplink loss dropped (each input rides in up to four).
+    pub messages_lost_in_network: u64,
+    /// Inputs delivered to the server (each counted once, however many copies arrived).
     pub inputs_delivered: u64,
+    /// Copies of unanswered inputs sent again in later messages (redundancy against loss).
+    pub input_copies_sent: u64,
     /// Acks received.
     pub acks: u64,
     /// Rejects received, by reason.
     pub rejects: BTreeMap<String, u64>,
     /// Inputs delivered but neither acked nor rejected (should be 0 once settled).
     pub inputs_unanswered: u64,
-    /// Inputs delivered a second time (the fault `duplicate`).
+    /// Messages delivered a second time (the fault `duplicate`).
     pub inputs_duplicated: u64,
-    /// Answers for which no delivery was owed (an input answered twice), and, while duplicates
-    /// are injected, second acks of one seq (a duplicate accepted). Should be 0.
+    /// Answers for which no delivery was owed, and second acks of one seq (an input applied
+    /// twice). Should be 0.
     pub answers_unexpected: u64,
+    /// Answers the sessions matched to no input awaiting one (a reject of a copy sent before
+    /// the first answer came counts here, and is expected).
+    pub unmatched_answers: u64,
+    /// Server messages the clients could not decode.
+    pub malformed: u64,
     /// Times the server process was stalled (SIGSTOP) by the fault injection.
     pub server_stalls: u64,
     /// Input to ack latency, ms: median (round trip through the simulated network and the tick).
@@ -94,12 +104,105 @@ pub struct Report {
     pub margin_ticks_p99: i32,
     /// Acked inputs that arrived late, each a rollback on the server.
     pub rollbacks_caused: u64,
+    /// Of the acked inputs sent in each client's first two seconds of play, the share that
+    /// arrived late (the clock had only the sync's estimate then).
+    pub late_share_first_2s: Option<f64>,
+    /// The same over the inputs sent after.
+    pub late_share_steady: Option<f64>,
+    /// Acked inputs sent in the first two seconds of play.
+    pub acked_first_2s: u64,
     /// Per second of load.
     pub rollbacks_caused_per_s: f64,
     /// The same per client.
     pub per_client: Vec<ClientTiming>,
+    /// The game clients' prediction and interpolation (`--predict`).
+    #[serde(flatten)]
+    pub prediction: Prediction,
     /// Latency histogram: `(upper bound ms, count)` per 5 ms bucket.
     pub latency_histogram: Vec<(f64, u64)>,
+}
+
+/// How the game clients' own avatars were predicted and their remote worlds drawn.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Prediction {
+    /// Game clients (predicting, drawing).
+    pub predicting_clients: u32,
+    /// Of them, clients whose prediction stopped (the server runs another scene).
+    pub prediction_stopped: u32,
+    /// Authoritative avatar states compared with the prediction for their tick.
+    pub prediction_states: u64,
+    /// ...of which equal to the bit.
+    pub prediction_exact: u64,
+    /// The share of compared states that were not.
+    pub prediction_mispredicted_share: Option<f64>,
+    /// Mispredictions by cause (`other_body`, `input_late`, `unexplained`:
+    /// `impact_client::session::PredictionStats`).
+    pub prediction_causes: BTreeMap<String, u64>,
+    /// Predicted minus authoritative position at the same tick, over every compared state, m.
+    pub prediction_error_m_p50: Option<f64>,
+    /// 99th percentile.
+    pub prediction_error_m_p99: Option<f64>,
+    /// Largest.
+    pub prediction_error_m_max: Option<f64>,
+    /// States no other body came near and no input was late for.
+    pub prediction_untouched_states: u64,
+    /// Their error's 99th percentile, m (the core is deterministic: 0).
+    pub prediction_untouched_m_p99: Option<f64>,
+    /// Their largest error, m.
+    pub prediction_untouched_m_max: Option<f64>,
+    /// The furthest a correction's easing moved a drawn avatar in one 60 Hz frame, m.
+    pub correction_jump_m_max: f64,
+    /// Remote bodies compared with the server's positions at the tick they were drawn at.
+    pub interpolation_samples: u64,
+    /// Drawn minus the server's position, m: median.
+    pub interpolation_error_m_p50: Option<f64>,
+    /// 99th percentile.
+    pub interpolation_error_m_p99: Option<f64>,
+    /// Samples of bodies nothing changed the motion of between the frames they were drawn
+    /// between (`DrawnBody::steady`).
+    pub interpolation_steady_samples: u64,
+    /// Their error's 99th percentile, m (up to the stream's f32).
+    pub interpolation_steady_m_p99: Option<f64>,
+}
+
+/// The `q` quantile of `v` (sorted in place); `None` when empty.
+pub fn quantile(v: &mut [f64], q: f64) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    Some(v[((v.len() as f64 * q).ceil() as usize).clamp(1, v.len()) - 1])
+}
+
+impl Prediction {
+    /// The prediction figures over the game clients' sessions (interpolation is filled in by
+    /// the load, which asks the server).
+    pub fn over<'a>(sessions: impl Iterator<Item = &'a impact_client::Session>) -> Prediction {
+        let mut p = Prediction::default();
+        let (mut all, mut untouched) = (Vec::new(), Vec::new());
+        for s in sessions {
+            p.predicting_clients += 1;
+            p.prediction_stopped += u32::from(s.prediction_problem().is_some());
+            let st = s.prediction();
+            p.prediction_states += st.compared;
+            p.prediction_exact += st.exact;
+            for (cause, n) in &st.causes {
+                *p.prediction_causes.entry(cause.to_string()).or_insert(0) += n;
+            }
+            all.extend_from_slice(&st.errors_m);
+            untouched.extend_from_slice(&st.errors_untouched_m);
+            p.correction_jump_m_max = p.correction_jump_m_max.max(st.max_frame_correction_m);
+        }
+        p.prediction_mispredicted_share = (p.prediction_states > 0)
+            .then(|| (p.prediction_states - p.prediction_exact) as f64 / p.prediction_states as f64);
+        p.prediction_error_m_p50 = quantile(&mut all, 0.5);
+        p.prediction_error_m_p99 = quantile(&mut all, 0.99);
+        p.prediction_error_m_max = all.last().copied();
+        p.prediction_untouched_states = untouched.len() as u64;
+        p.prediction_untouched_m_p99 = quantile(&mut untouched, 0.99);
+        p.prediction_untouched_m_max = untouched.last().copied();
+        p
+    }
 }
 
 /// One client's timing figures.
@@ -128,8 +231,8 @@ impl std::fmt::Display for Report {
         )?;
         writeln!(
             f,
-            "  inputs   sent {} | lost in the network {} | delivered {} ({} twice) | acked {} | unanswered {} | answered unexpectedly {}",
-            self.inputs_sent, self.inputs_lost_in_network, self.inputs_delivered, self.inputs_duplicated, self.acks, self.inputs_unanswered, self.answers_unexpected
+            "  inputs   sent {} ({} copies again) | lost in the network {} ({} messages) | delivered {} ({} twice) | acked {} | unanswered {} | answered unexpectedly {}",
+            self.inputs_sent, self.input_copies_sent, self.inputs_lost_in_network, self.messages_lost_in_network, self.inputs_delivered, self.inputs_duplicated, self.acks, self.inputs_unanswered, self.answers_unexpected
         )?;
         let rejects: Vec<String> = self.rejects.iter().map(|(k, v)| format!("{k} {v}")).collect();
         writeln!(f, "  rejects  {}", if rejects.is_empty() { "none".into() } else { rejects.join(", ") })?;
@@ -175,7 +278,51 @@ impl std::fmt::Display for Report {
                 worst.corrections
             )?;
         }
+        let pct = |x: Option<f64>| x.map_or("-".to_string(), |x| format!("{:.2} %", 100.0 * x));
+        writeln!(
+            f,
+            "           late in the first 2 s of play {} (of {}), after {}",
+            pct(self.late_share_first_2s),
+            self.acked_first_2s,
+            pct(self.late_share_steady)
+        )?;
         writeln!(f, "  views    {} confirmed ticks matched, {} differed", self.views_matched, self.views_mismatched)?;
+        let p = &self.prediction;
+        if p.predicting_clients > 0 {
+            let m = |x: Option<f64>| x.map_or("-".to_string(), |x| format!("{:.3} m", x));
+            let mm = |x: Option<f64>| x.map_or("-".to_string(), |x| format!("{:.3} mm", x * 1e3));
+            let causes: Vec<String> = p.prediction_causes.iter().map(|(k, v)| format!("{k} {v}")).collect();
+            writeln!(
+                f,
+                "  predict  {} clients ({} stopped) | {} states, {} exact, {} mispredicted ({}) | error p50 {} p99 {} max {}",
+                p.predicting_clients,
+                p.prediction_stopped,
+                p.prediction_states,
+                p.prediction_exact,
+                pct(p.prediction_mispredicted_share),
+                if causes.is_empty() { "none".into() } else { causes.join(", ") },
+                m(p.prediction_error_m_p50),
+                m(p.prediction_error_m_p99),
+                m(p.prediction_error_m_max),
+            )?;
+            writeln!(
+                f,
+                "           untouched: {} states, p99 {} max {} | largest correction step {:.1} mm per 60 Hz frame",
+                p.prediction_untouched_states,
+                mm(p.prediction_untouched_m_p99),
+                mm(p.prediction_untouched_m_max),
+                p.correction_jump_m_max * 1e3
+            )?;
+            writeln!(
+                f,
+                "  interp   {} bodies drawn vs the server: p50 {} p99 {} | steady {}: p99 {}",
+                p.interpolation_samples,
+                mm(p.interpolation_error_m_p50),
+                mm(p.interpolation_error_m_p99),
+                p.interpolation_steady_samples,
+                mm(p.interpolation_steady_m_p99)
+            )?;
+        }
         if self.state_frames > 0 {
             writeln!(
                 f,

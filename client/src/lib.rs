@@ -62,4 +62,4 @@ pub mod session;
 #[cfg(feature = "zenoh")]
 pub mod transport;
 
-pub use session::{InputError, Session, SessionConfig, SessionStats, Status};
+pub use session::{Answer, InputError, Outcome, Session, SessionConfig, SessionStats, Status};

@@ -223,6 +223,36 @@ impl Predictor {
         while self.inputs.first_key_value().is_some_and(|(t, _)| *t < oldest) {
             self.inputs.pop_first();
         }
+        self.replay_from(tick);
+    }
+
+    /// The server answered input `seq`: applied at `applied` (`None`: refused). An input the
+    /// server applied at another tick than it was stamped for (a stale one clamped into its
+    /// window) moves there; a refused one is forgotten. Either way the prediction is replayed
+    /// from the earlier tick, so it follows what the server does rather than waiting for the
+    /// state that shows it.
+    pub fn answered(&mut self, seq: u32, applied: Option<Tick>) {
+        let found = self.inputs.iter().find_map(|(&t, v)| v.iter().position(|i| i.seq == seq).map(|k| (t, k)));
+        let Some((tick, k)) = found else { return };
+        if applied == Some(Tick(tick)) {
+            return;
+        }
+        let list = self.inputs.get_mut(&tick).expect("found above");
+        let input = list.remove(k);
+        if list.is_empty() {
+            self.inputs.remove(&tick);
+        }
+        let mut from = tick;
+        if let Some(at) = applied {
+            self.inputs.entry(at.0).or_default().push(input);
+            from = from.min(at.0);
+        }
+        self.replay_from(Tick(from));
+    }
+
+    /// Re-predicts from `tick` when it is already past (its inputs changed), keeping the drawn
+    /// avatar where it was: the difference is eased away.
+    fn replay_from(&mut self, tick: Tick) {
         if self.avatar.is_some() && tick < self.world.tick {
             if let Some(snap) = self.history.iter().find(|h| h.tick == tick).cloned() {
                 let present = self.world.tick;
@@ -497,6 +527,33 @@ mod tests {
         }
         assert_eq!(exact, 100);
         assert!(touching > 30, "the avatar rested on the ground and the wall: {touching}");
+    }
+
+    /// The server refused one input and applied another two ticks after its stamp: told so by
+    /// their answers, the predictor replays as the server did and its next states are exact,
+    /// before any authoritative state showed the difference.
+    #[test]
+    fn answers_move_or_forget_predicted_inputs() {
+        let scene = Scene::parse(SCENE, "<yard>").unwrap();
+        let mut server = Server::new(&scene);
+        let mut p = Predictor::new(&scene, ME, PredictConfig::default()).unwrap();
+        p.authoritative(server.world.tick, &server.state());
+        let t0 = server.world.tick.0;
+        let (refused, moved) = (walk(server.avatar, 10), walk(server.avatar, 30));
+        p.input(Tick(t0 + 2), 1, &refused);
+        p.input(Tick(t0 + 4), 2, &moved);
+        p.advance_to(Tick(t0 + 10));
+        p.answered(1, None);
+        p.answered(2, Some(Tick(t0 + 6)));
+        p.advance_to(Tick(t0 + 12));
+        for k in 0..12 {
+            let inputs =
+                if server.world.tick.0 == t0 + 6 { vec![TickInput::new(ME, 2, moved.clone())] } else { vec![] };
+            server.step(&inputs);
+            if k % 3 == 2 {
+                assert_eq!(p.authoritative(server.world.tick, &server.state()), Reconciled::Exact, "k {k}");
+            }
+        }
     }
 
     /// The server's avatar is pushed (a body the predictor does not simulate): the prediction is

@@ -58,6 +58,39 @@ pub const MAX_OUTGOING: usize = 256;
 /// Ray results held for the game at most; past it the oldest is dropped.
 pub const MAX_RAY_RESULTS: usize = 256;
 
+/// Answers to inputs held for the game at most; past it the oldest is dropped.
+pub const MAX_ANSWERS: usize = 1024;
+
+/// The server's answer to one of the client's inputs ([`Session::take_answers`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Answer {
+    /// The input's seq ([`Session::input`] returned it).
+    pub seq: u32,
+    /// The tick it was stamped for.
+    pub tick: Tick,
+    /// When it was first sent.
+    pub sent: Instant,
+    /// From its first sending to its answer.
+    pub round_trip: Duration,
+    /// What the server did with it.
+    pub outcome: Outcome,
+}
+
+/// What the server did with an input.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Outcome {
+    /// Applied at `applied_tick`; `margin_ticks` is how many ticks before that tick began it
+    /// arrived (negative: late, the server rolled back for it).
+    Accepted {
+        /// The tick it was applied at.
+        applied_tick: Tick,
+        /// Arrival margin, ticks.
+        margin_ticks: i32,
+    },
+    /// Refused, for this reason (PROTOCOL.md, "Rejects").
+    Rejected(RejectReason),
+}
+
 /// How a session behaves.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SessionConfig {
@@ -212,6 +245,7 @@ pub struct Session {
     resend: VecDeque<ClientInput>,
     outgoing: VecDeque<ClientMessage>,
     rays: VecDeque<RayResult>,
+    answers: VecDeque<Answer>,
     stats: SessionStats,
     predictor: Option<Predictor>,
     prediction: PredictionStats,
@@ -242,6 +276,7 @@ impl Session {
             resend: VecDeque::new(),
             outgoing: VecDeque::new(),
             rays: VecDeque::new(),
+            answers: VecDeque::new(),
             stats: SessionStats::default(),
             predictor: None,
             prediction: PredictionStats::default(),
@@ -408,6 +443,27 @@ impl Session {
         self.rays.drain(..)
     }
 
+    /// The answers to inputs received since the last call, in arrival order: one per input
+    /// (its first answer; a copy's second answer is not repeated here).
+    pub fn take_answers(&mut self) -> impl Iterator<Item = Answer> + '_ {
+        self.answers.drain(..)
+    }
+
+    fn answered(&mut self, seq: u32, sent: Sent, outcome: Outcome, now: Instant) {
+        if let Some(p) = self.predictor.as_mut() {
+            let applied = match outcome {
+                Outcome::Accepted { applied_tick, .. } => Some(applied_tick),
+                Outcome::Rejected(_) => None,
+            };
+            p.answered(seq, applied);
+        }
+        if self.answers.len() >= MAX_ANSWERS {
+            self.answers.pop_front();
+        }
+        let round_trip = now.saturating_duration_since(sent.at);
+        self.answers.push_back(Answer { seq, tick: sent.tick, sent: sent.at, round_trip, outcome });
+    }
+
     /// What the session counted.
     pub fn stats(&self) -> &SessionStats {
         &self.stats
@@ -447,8 +503,10 @@ impl Session {
                     self.late_ticks.push_back(a.applied_tick);
                 }
                 self.resend.retain(|i| i.seq != a.seq);
-                if self.outbox.answered(a.seq).is_some() {
+                if let Some(sent) = self.outbox.answered(a.seq) {
                     self.stats.inputs_acked += 1;
+                    let outcome = Outcome::Accepted { applied_tick: a.applied_tick, margin_ticks: a.margin_ticks };
+                    self.answered(a.seq, sent, outcome, now);
                 } else {
                     self.stats.unmatched_answers += 1;
                 }
@@ -458,12 +516,14 @@ impl Session {
                 let Some(seq) = j.seq else { return };
                 self.resend.retain(|i| i.seq != seq);
                 match self.outbox.answered(seq) {
-                    Some(Sent { view: Some(view), .. }) => {
-                        if let (RejectReason::Future, Some(t), Some(n)) = (j.reason, j.tick, j.newest_tick) {
+                    Some(sent) => {
+                        if let (RejectReason::Future, Some(t), Some(n), Some(view)) =
+                            (j.reason, j.tick, j.newest_tick, sent.view)
+                        {
                             self.clock.back_off(t, view, n);
                         }
+                        self.answered(seq, sent, Outcome::Rejected(j.reason), now);
                     }
-                    Some(_) => {}
                     // An accepted input whose entity went away before its tick was re-simulated
                     // is told so by a second message (PROTOCOL.md): not unmatched.
                     None if matches!(j.reason, RejectReason::UnknownEntity | RejectReason::NotOwner) => {}
@@ -741,6 +801,40 @@ mod tests {
         // A server that remembers more than the client sent: the client's seqs jump past it.
         s.receive(welcome(20), t);
         assert_eq!(s.input(walk(), t), Ok(20));
+    }
+
+    /// Each input's first answer reaches the game once, typed, with its round trip; a second
+    /// answer for the same seq is counted as unmatched, not repeated.
+    #[test]
+    fn answers_reach_the_game_once_each() {
+        use impact_protocol::InputReject;
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig::new(ClientId(7)));
+        s.receive(welcome(0), t0);
+        let t = t0 + SYNC_TIMEOUT;
+        while s.poll_transmit(t).is_some() {}
+        let (a, b) = (s.input(walk(), t).unwrap(), s.input(walk(), t).unwrap());
+        let later = t + Duration::from_millis(90);
+        s.receive(ack(a, 101, 4), later);
+        let reject = InputReject {
+            client: ClientId(7),
+            seq: Some(b),
+            reason: RejectReason::RateLimited,
+            tick: None,
+            detail: String::new(),
+            oldest_tick: None,
+            newest_tick: None,
+        };
+        s.receive(ServerMessage::Reject(reject), later);
+        s.receive(ack(a, 102, 4), later);
+        let answers: Vec<Answer> = s.take_answers().collect();
+        assert_eq!(answers.len(), 2);
+        assert_eq!(answers[0].seq, a);
+        assert_eq!(answers[0].outcome, Outcome::Accepted { applied_tick: Tick(101), margin_ticks: 0 });
+        assert_eq!(answers[0].round_trip, Duration::from_millis(90));
+        assert_eq!(answers[1].outcome, Outcome::Rejected(RejectReason::RateLimited));
+        assert_eq!(s.stats().unmatched_answers, 1);
+        assert_eq!(s.take_answers().count(), 0, "taken");
     }
 
     /// Nothing for another client changes the session; an unknown kind is skipped and counted.

@@ -83,8 +83,17 @@ fn a_client_syncs_predicts_plays_on_time_and_loses_no_input_to_a_lossy_uplink() 
     let s = game.stats().clone();
     assert!(s.inputs_sent >= 35, "{s:?}");
     assert_eq!((s.inputs_acked, s.late_acks, s.rejects.len()), (s.inputs_sent, 0, 0), "{s:?}");
+    // The avatar, predicted with the server's core, equalled every state the server streamed
+    // unless another body came near (the arena's balls): mostly untouched, so mostly exact.
+    let pr = game.prediction().clone();
+    assert!(pr.compared >= 20, "{pr:?}");
+    assert!(pr.exact * 10 >= pr.compared * 8, "mostly exact: {} of {}: {:?}", pr.exact, pr.compared, pr.causes);
 
     // Half the messages lost: each input rides in up to four, so every one still arrives, once.
+    // An input whose own message was lost arrives as a copy an input later than the path takes,
+    // late (the server rolls back for it); the lead the server recommends follows the path, not
+    // the loss, so the inputs that were not lost stay within the ticks it accepts ahead.
+    let lead = game.clock().lead().unwrap();
     let mut k = 0u32;
     fired += play(&conn, &mut game, 2.0, |m| {
         k += 1;
@@ -94,6 +103,8 @@ fn a_client_syncs_predicts_plays_on_time_and_loses_no_input_to_a_lossy_uplink() 
     let sent = t.inputs_sent - s.inputs_sent;
     assert!(t.copies_sent > s.copies_sent, "{t:?}");
     assert_eq!(t.inputs_acked - s.inputs_acked, sent, "every input acked: {t:?}");
+    let after = game.clock().lead().unwrap();
+    assert!(after <= lead + 1.0, "the lead rose from {lead} to {after} ticks for copies that came late");
 
     // Every message twice (a resend after a reconnect looks the same): applied once, acked once,
     // the repeat neither answered nor rejected.
@@ -107,13 +118,12 @@ fn a_client_syncs_predicts_plays_on_time_and_loses_no_input_to_a_lossy_uplink() 
     let u = game.stats().clone();
     assert!(fired >= 15);
     assert_eq!(u.ray_results, fired, "every shot answered once, early as they all were");
-    // The avatar, predicted with the server's core, equalled every state the server streamed
-    // unless another body came near (the arena's balls) or an input was late.
+    // Over the whole game every misprediction is explained: another body came near, or an
+    // input was late (the copies of lost ones).
     let pr = game.prediction();
     assert!(pr.compared >= 50, "{pr:?}");
     assert_eq!(pr.causes.get("unexplained"), None, "{:?}", pr.causes);
     assert!(pr.errors_untouched_m.iter().all(|&e| e == 0.0));
-    assert!(pr.exact * 10 >= pr.compared * 8, "mostly untouched, so mostly exact: {} of {}", pr.exact, pr.compared);
     assert_eq!(u.inputs_acked, u.inputs_sent, "{u:?}");
     assert!(u.rejects.is_empty(), "no repeat counts as a reject: {u:?}");
     assert_eq!(u.unmatched_answers, 0, "no input answered twice: {u:?}");

@@ -67,6 +67,8 @@ fn run(seed: u64) -> Result<String, String> {
         progress: false,
         faults,
         state: false,
+        predict: 0,
+        scene: None,
     };
     let report = load::run(&cfg).map_err(|e| format!("{plan}\nload: {e}"))?;
     let rss = rss_mib(pid);

@@ -352,6 +352,8 @@ fn ahead_clients_arrive_on_time_behind_clients_are_rolled_back_and_both_see_the_
             settle: Duration::from_millis(1500),
             faults: Default::default(),
             state: false,
+            predict: 0,
+            scene: None,
             progress: false,
         };
         let r = load::run(&cfg).expect("load runs");

@@ -58,6 +58,8 @@ fn players(
         progress: false,
         faults: Default::default(),
         state: true,
+        predict: 0,
+        scene: None,
     };
     std::thread::spawn(move || load::run(&cfg).expect("the load runs"))
 }

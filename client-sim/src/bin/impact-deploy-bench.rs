@@ -160,6 +160,8 @@ fn load_cfg(connect: &str, clients: u32, first: u32, sessions: u32, seconds: u64
         progress: false,
         faults: Default::default(),
         state: false,
+        predict: 0,
+        scene: None,
     }
 }
 

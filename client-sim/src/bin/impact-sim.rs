@@ -81,12 +81,23 @@ struct Args {
     /// per client per second.
     #[arg(long)]
     state: bool,
+    /// Game clients among them, spread over the ids: each reads its state stream, predicts its
+    /// avatar with the core and draws at 60 frames a second; the report gives their prediction
+    /// and interpolation errors. Each costs the load generator a predictor (a sample keeps
+    /// 1,000 clients on one core). Default 0; with --demo, every client.
+    #[arg(long)]
+    predict: Option<u32>,
+    /// The scene the server runs, for --predict (default: the bundled scene of the world's
+    /// name, scenes/{world}.toml).
+    #[arg(long)]
+    scene: Option<PathBuf>,
     /// Seed for behaviour and the network model.
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// The demo: start a server on the arena scene in this process (on a free loopback port),
     /// drive it with the clients, and print both reports. Defaults to 300 clients for 20 s with
-    /// 80 +- 20 ms latency and 1 % loss unless those flags are given.
+    /// 80 +- 20 ms latency and 1 % loss, state streams on and every client predicting, unless
+    /// those flags are given.
     #[arg(long)]
     demo: bool,
     /// With --demo: serve the live viewer here (`host:port`; a free port if this one is taken).
@@ -106,6 +117,19 @@ fn parse_duration(s: &str) -> Result<Duration, String> {
     Ok(Duration::from_secs_f64(secs))
 }
 
+/// How many clients predict, and the scene they predict with.
+fn prediction(a: &Args) -> Result<(u32, Option<impact_core::scene::Scene>)> {
+    let predict = a.predict.unwrap_or(0).min(a.clients);
+    if predict == 0 {
+        return Ok((0, None));
+    }
+    let path = a.scene.clone().unwrap_or_else(|| impact_core::scene::Scene::bundled_path(&a.world));
+    let scene = impact_core::scene::Scene::load(&path)
+        .map_err(anyhow::Error::msg)
+        .with_context(|| format!("--predict needs the scene the server runs (--scene {})", path.display()))?;
+    Ok((predict, Some(scene)))
+}
+
 fn main() -> Result<()> {
     let mut a = Args::parse();
     let mut demo_server = None;
@@ -121,6 +145,8 @@ fn main() -> Result<()> {
         if !given("--loss") {
             a.loss = 0.01;
         }
+        a.state = true;
+        a.predict = a.predict.or(Some(a.clients));
         let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
         let endpoint = format!("tcp/127.0.0.1:{port}");
         let scene = impact_core::scene::Scene::load(&impact_core::scene::Scene::bundled_path("arena"))
@@ -145,6 +171,7 @@ fn main() -> Result<()> {
         bail!("--loss {} must be in [0, 1]", a.loss);
     }
     let ms = |x: f64| Duration::from_secs_f64(x.max(0.0) / 1000.0);
+    let (predict, scene) = prediction(&a)?;
     let cfg = LoadConfig {
         connect: if a.zenoh_config.is_some() { Vec::new() } else { a.connect.clone() },
         zenoh_config: a.zenoh_config.clone(),
@@ -171,10 +198,13 @@ fn main() -> Result<()> {
         progress: true,
         faults: Default::default(),
         state: a.state,
+        predict,
+        scene,
     };
     eprintln!(
-        "impact-sim: {} clients ({:?}, timing {:?}) over {} sessions -> {}, {} s, latency {} +- {} ms, loss {}",
+        "impact-sim: {} clients ({} predicting, {:?}, timing {:?}) over {} sessions -> {}, {} s, latency {} +- {} ms, loss {}",
         cfg.clients,
+        cfg.predict,
         cfg.behaviour,
         cfg.timing,
         cfg.sessions,

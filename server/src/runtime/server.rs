@@ -142,8 +142,17 @@ enum Control {
 /// What the input subscriber hands the tick thread: inputs, and time-sync probes (answered
 /// there, so the round trip a probe measures includes the queue an input waits in).
 enum Ingress {
-    Input { input: ClientInput, encoding: Encoding },
-    Ping { ping: TimePing, encoding: Encoding },
+    /// `copy`: an input a batch carried before its newest, sent again against loss; its delay
+    /// is not the path's, so it does not move the lead recommended to the client.
+    Input {
+        input: ClientInput,
+        encoding: Encoding,
+        copy: bool,
+    },
+    Ping {
+        ping: TimePing,
+        encoding: Encoding,
+    },
     FullFrame(ClientId),
 }
 

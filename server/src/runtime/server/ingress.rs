@@ -78,7 +78,8 @@ pub(super) fn declare_primary(
                         return;
                     }
                 };
-                for input in inputs {
+                let newest = inputs.len().saturating_sub(1);
+                for (k, input) in inputs.into_iter().enumerate() {
                     let here = Some((input.seq, input.tick));
                     if input.client != client {
                         refuse(
@@ -94,7 +95,7 @@ pub(super) fn declare_primary(
                         continue;
                     }
                     if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) =
-                        tx.try_send(Ingress::Input { input, encoding })
+                        tx.try_send(Ingress::Input { input, encoding, copy: k < newest })
                     {
                         refuse(
                             client,

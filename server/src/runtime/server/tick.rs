@@ -358,8 +358,8 @@ impl TickLoop {
         let mut queued = 0u32;
         while let Ok(item) = ingress.try_recv() {
             queued += 1;
-            let (input, encoding) = match item {
-                Ingress::Input { input, encoding } => (input, encoding),
+            let (input, encoding, copy) = match item {
+                Ingress::Input { input, encoding, copy } => (input, encoding, copy),
                 Ingress::Ping { ping, encoding } => {
                     self.pong(ping, encoding);
                     continue;
@@ -423,9 +423,16 @@ impl TickLoop {
                     self.summary.inputs_accepted += 1;
                     self.admitted.inputs.push(LoggedInput { tick: applied, ..logged });
                     // The most a client can lead by and still be accepted: its round trip (the
-                    // smallest lead that is on time) plus the ticks the server accepts ahead.
+                    // smallest lead that is on time) plus the ticks the server accepts ahead. A
+                    // copy whose first message was lost arrived an input later than the path
+                    // takes: no lead would have made it on time, and raising everyone's lead for
+                    // it pushes their next inputs past the ticks accepted ahead (`future`).
                     let max_lead = now.0.saturating_sub(view.0).saturating_add(self.session.config().lead_ticks);
-                    let lead_ticks = state.timing.observe(now, view, max_lead);
+                    let lead_ticks = if copy {
+                        state.timing.lead().min(max_lead)
+                    } else {
+                        state.timing.observe(now, view, max_lead)
+                    };
                     let margin_ticks = (i64::from(applied.0) - i64::from(now.0)).clamp(-1 << 30, 1 << 30) as i32;
                     let ack = ServerMessage::Ack(InputAck {
                         client,
