@@ -211,8 +211,9 @@ pub struct PredictionStats {
     pub exact: u64,
     /// States taken without a prediction to compare (the first, a new avatar).
     pub taken: u64,
-    /// Mispredictions by cause: `other_body` (another body came within reach of the avatar
-    /// around that tick: the predictor simulates no other body), `input_late` (one of the
+    /// Mispredictions by cause: `other_body` (another body collided with the avatar, by its
+    /// events, or came within reach of it around that tick: the predictor simulates no other
+    /// body), `input_late` (one of the
     /// client's inputs before that tick had not been applied on time), `unexplained` (none of
     /// these: a bug, since the core is deterministic).
     pub causes: BTreeMap<&'static str, u64>,
@@ -366,15 +367,24 @@ impl Session {
         }
     }
 
-    /// Whether another body of the remote world came within reach of the avatar in the ticks
-    /// before `tick` (as the stream drew them: the server's at its frames).
+    /// Whether another body touched the avatar in the ticks before `tick` (a collision event of
+    /// the avatar's: the stream may not carry the body, past the client's byte budget) or came
+    /// within reach of it (as the stream drew them: the server's at its frames).
     fn other_body_near(&self, tick: Tick, s: &impact_protocol::AvatarState) -> bool {
+        let since = self.welcome.as_ref().map_or(8, |w| w.tick_hz / 8);
+        let collided = (tick.0.saturating_sub(since)..=tick.0).any(|t| {
+            self.events
+                .at(Tick(t))
+                .any(|e| e.phase != impact_protocol::Phase::Hit && (e.a == s.entity || e.b == s.entity))
+        });
+        if collided {
+            return true;
+        }
         let Some(r) = &self.remote else { return false };
         let size = |e| r.info(e).map_or(0.5, |i| f64::from(i.half_extents_m.iter().copied().fold(0.0f32, f32::max)));
         let me = size(s.entity);
         let at = s.position;
         let mut drawn = Vec::new();
-        let since = self.welcome.as_ref().map_or(8, |w| w.tick_hz / 8);
         for k in 0..=since {
             r.draw(f64::from(tick.0.saturating_sub(k)), &mut drawn);
             let near = drawn.iter().filter(|b| b.entity != s.entity).any(|b| {

@@ -121,8 +121,8 @@ impl Metrics {
         let w = WorldMetrics { m: self.clone(), world: world.to_string(), last: Totals::default() };
         // Series that may stay at zero are there from the start: a scrape tells "none" from
         // "not exported", and `rate()` has a first sample.
-        self.rollbacks.get_or_create(&w.l());
-        self.egress_dropped.get_or_create(&w.l());
+        drop(self.rollbacks.get_or_create(&w.l()));
+        drop(self.egress_dropped.get_or_create(&w.l()));
         w
     }
 
