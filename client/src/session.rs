@@ -847,6 +847,48 @@ mod tests {
         assert_eq!(s.take_answers().count(), 0, "taken");
     }
 
+    /// A misprediction is put down to another body when one of the avatar's collision events
+    /// falls in the eighth of a second before the state (the body may be one the stream never
+    /// carried); a shot that hit the avatar moves nothing and explains nothing.
+    #[test]
+    fn the_avatars_collisions_explain_a_misprediction() {
+        use impact_protocol::{AvatarState, CollisionEvent, EventBatch, EventStatus, Phase, Response};
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig::new(ClientId(7)));
+        s.receive(welcome(0), t0);
+        let me = AvatarState {
+            entity: EntityId(3),
+            position: [0.0; 3],
+            velocity: [0.0; 3],
+            asleep: false,
+            still_ticks: 0,
+            touching: vec![],
+        };
+        let event = |tick: u32, phase: Phase| {
+            let e = CollisionEvent {
+                tick: Tick(tick),
+                toi: 0.5,
+                a: EntityId(9),
+                b: EntityId(3),
+                point: [0.0; 3],
+                normal: [1.0, 0.0, 0.0],
+                depth_m: 0.0,
+                closing_speed_mps: 4.0,
+                phase,
+                response: Response::Bounce,
+                status: EventStatus::Provisional,
+            };
+            ServerMessage::Events(EventBatch { tick: Tick(tick), revision: 0, events: vec![e] })
+        };
+        s.receive(event(120, Phase::Hit), t0);
+        assert!(!s.other_body_near(Tick(122), &me), "a shot");
+        s.receive(event(100, Phase::Begin), t0);
+        assert!(!s.other_body_near(Tick(122), &me), "too long before (64 Hz: 8 ticks)");
+        assert!(s.other_body_near(Tick(104), &me));
+        s.receive(event(118, Phase::End), t0);
+        assert!(s.other_body_near(Tick(122), &me));
+    }
+
     /// Nothing for another client changes the session; an unknown kind is skipped and counted.
     #[test]
     fn messages_for_others_are_skipped() {
