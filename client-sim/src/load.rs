@@ -137,8 +137,9 @@ impl Faults {
         Faults { duplicate, partitions, stall_pid, stalls }
     }
 
-    fn partitioned(&self, since_start: Duration) -> bool {
-        self.partitions.iter().any(|&(a, len)| since_start >= a && since_start < a + len)
+    /// When the partition holding at `since_start` ends, if one does.
+    fn partition_end(&self, since_start: Duration) -> Option<Duration> {
+        self.partitions.iter().find(|&&(a, len)| since_start >= a && since_start < a + len).map(|&(a, len)| a + len)
     }
 
     fn stalled(&self, since_start: Duration) -> bool {
@@ -464,9 +465,8 @@ struct Run<'a> {
     input_keys: Vec<String>,
     checks: Vec<Check>,
     next_check: Instant,
-    /// Remote bodies as drawn minus as the server had them, m; and over the steady ones.
-    interpolation: Vec<f64>,
-    interpolation_steady: Vec<f64>,
+    /// Remote bodies as drawn minus as the server had them, m, and whether each was steady.
+    interpolation: Vec<(f64, bool)>,
 }
 
 /// Which clients are game clients: `predict` of them, spread evenly over the ids (so over the
@@ -594,7 +594,6 @@ impl Run<'_> {
             checks: Vec::new(),
             next_check: load_start + CHECK_EVERY,
             interpolation: Vec::new(),
-            interpolation_steady: Vec::new(),
         })
     }
 
@@ -605,8 +604,12 @@ impl Run<'_> {
         for (at, m) in arrived {
             self.down.send(at, &self.cfg.downlink, &mut self.rng, m);
         }
-        let cut = self.cfg.faults.partitioned(now.saturating_duration_since(self.load_start));
-        while let Some(m) = if cut { None } else { self.down.pop_due(now) } {
+        if let Some(end) = self.cfg.faults.partition_end(now.saturating_duration_since(self.load_start)) {
+            // Nothing crosses either way until it ends; what was sent meanwhile comes after.
+            self.down.stall_until(self.load_start + end);
+            self.up.stall_until(self.load_start + end);
+        }
+        while let Some(m) = self.down.pop_due(now) {
             match m {
                 Inbound::Stats(s) => self.on_stats(s, now),
                 Inbound::Msg(k, msg) => self.on_message(k, msg, now),
@@ -641,6 +644,12 @@ impl Run<'_> {
             ServerMessage::Ack(a) if a.client == c.id => {
                 // A second ack of one seq: an input applied twice.
                 r.answers_unexpected += u64::from(!c.accepted(a.seq));
+                // Seqs before it the server says it accepted: owed nothing more (their own acks
+                // may have been lost on the way).
+                for seq in impact_client::session::accepted_before(a.seq, a.accepted_before) {
+                    c.owed.remove(&seq);
+                    c.acked.insert(seq);
+                }
             }
             ServerMessage::Reject(j) if j.client == c.id => {
                 // An accepted input whose entity went away before its tick was re-simulated is
@@ -700,6 +709,12 @@ impl Run<'_> {
                 let _ = s.draw_avatar(now);
             }
             for a in s.take_answers() {
+                if a.outcome == Outcome::AckLost {
+                    // Told by a later ack: no round trip or margin of its own.
+                    self.r.acks += 1;
+                    self.r.acks_recovered += 1;
+                    continue;
+                }
                 let _ = self.latency.record(a.round_trip.as_micros().max(1) as u64);
                 let Outcome::Accepted { margin_ticks, .. } = a.outcome else { continue };
                 self.r.acks += 1;
@@ -727,9 +742,8 @@ impl Run<'_> {
     /// is asked where everything was at that tick; answers that came are compared.
     fn check(&mut self, wiring: &Wiring, now: Instant) {
         let mut interpolation = std::mem::take(&mut self.interpolation);
-        let mut steady = std::mem::take(&mut self.interpolation_steady);
-        self.checks.retain(|c| !c.compare(&mut interpolation, &mut steady));
-        (self.interpolation, self.interpolation_steady) = (interpolation, steady);
+        self.checks.retain(|c| !c.compare(&mut interpolation));
+        self.interpolation = interpolation;
         if now < self.next_check || now >= self.load_end || self.cfg.predict == 0 {
             return;
         }
@@ -753,12 +767,11 @@ impl Run<'_> {
         }
     }
 
-    /// Faults first: a partition holds both lines (they are FIFO, so holding is delaying); a
-    /// stall stops the server process. Then the messages due are put.
+    /// Faults first: a stall stops the server process (a partition stalled both lines in
+    /// `downlink`). Then the messages due are put.
     fn uplink(&mut self, wiring: &Wiring, now: Instant) {
         let faults = &self.cfg.faults;
         let since = now.saturating_duration_since(self.load_start);
-        let cut = faults.partitioned(since);
         if let Some(pid) = faults.stall_pid {
             let want = faults.stalled(since);
             if want != self.server_stopped {
@@ -767,7 +780,7 @@ impl Run<'_> {
                 self.r.server_stalls += u64::from(want);
             }
         }
-        while let Some((k, seqs, bytes)) = if cut { None } else { self.up.pop_due(now) } {
+        while let Some((k, seqs, bytes)) = self.up.pop_due(now) {
             let put = wiring.session(k).put(&self.input_keys[k], bytes).encoding(self.cfg.encoding.zenoh_tag());
             if put.wait().is_ok() {
                 self.r.inputs_delivered += self.clients[k].delivered(&seqs);
@@ -793,7 +806,7 @@ impl Run<'_> {
 
     /// The report: what was counted, with the quantiles, rates and per-client figures drawn from
     /// it. `state` is the state streams' (bytes, frames) at the end of the load.
-    fn report(mut self, state: (u64, u64)) -> Report {
+    fn report(self, state: (u64, u64)) -> Report {
         let cfg = self.cfg;
         let (latency, depth, server_ticks, clients) = (&self.latency, &self.depth, &self.server_ticks, &self.clients);
         let mut r = self.r;
@@ -857,11 +870,17 @@ impl Run<'_> {
         r.views_matched = clients.iter().map(|c| c.session.events().matched).sum();
         r.views_mismatched = clients.iter().map(|c| c.session.events().mismatched).sum();
         r.prediction = crate::report::Prediction::over(clients.iter().filter(|c| c.game).map(|c| &c.session));
-        r.prediction.interpolation_samples = self.interpolation.len() as u64;
-        r.prediction.interpolation_error_m_p50 = quantile(&mut self.interpolation, 0.5);
-        r.prediction.interpolation_error_m_p99 = quantile(&mut self.interpolation, 0.99);
-        r.prediction.interpolation_steady_samples = self.interpolation_steady.len() as u64;
-        r.prediction.interpolation_steady_m_p99 = quantile(&mut self.interpolation_steady, 0.99);
+        let p = &mut r.prediction;
+        let mut all: Vec<f64> = self.interpolation.iter().map(|x| x.0).collect();
+        let errors =
+            |steady: bool| -> Vec<f64> { self.interpolation.iter().filter(|x| x.1 == steady).map(|x| x.0).collect() };
+        let (mut steady, mut changed) = (errors(true), errors(false));
+        p.interpolation_samples = all.len() as u64;
+        p.interpolation_error_m_p50 = quantile(&mut all, 0.5);
+        p.interpolation_error_m_p99 = quantile(&mut all, 0.99);
+        p.interpolation_steady_samples = steady.len() as u64;
+        p.interpolation_steady_m_p99 = quantile(&mut steady, 0.99);
+        p.interpolation_changed_m_p99 = quantile(&mut changed, 0.99);
         let bucket = 5_000u64;
         let top = latency.max().div_ceil(bucket).min(400);
         r.latency_histogram =
@@ -872,7 +891,7 @@ impl Run<'_> {
 
 impl Check {
     /// Compares what was drawn with the server's answer once it came (true: done).
-    fn compare(&self, errors: &mut Vec<f64>, steady: &mut Vec<f64>) -> bool {
+    fn compare(&self, errors: &mut Vec<(f64, bool)>) -> bool {
         let reply = match self.replies.try_recv() {
             Ok(Some(reply)) => reply,
             Ok(None) => return false,
@@ -889,11 +908,7 @@ impl Check {
         let truth: BTreeMap<_, _> = s.bodies.iter().map(|b| (b.entity, b.position)).collect();
         for d in self.drawn.iter().flatten() {
             if let Some(p) = truth.get(&d.entity) {
-                let e = distance(d.position, *p);
-                errors.push(e);
-                if d.steady {
-                    steady.push(e);
-                }
+                errors.push((distance(d.position, *p), d.steady));
             }
         }
         true

@@ -25,8 +25,10 @@ pub struct Report {
     pub inputs_delivered: u64,
     /// Copies of unanswered inputs sent again in later messages (redundancy against loss).
     pub input_copies_sent: u64,
-    /// Acks received.
+    /// Inputs acked (those whose ack was lost and a later ack told included).
     pub acks: u64,
+    /// Of them, inputs whose own ack was lost on the way and a later ack told accepted.
+    pub acks_recovered: u64,
     /// Rejects received, by reason.
     pub rejects: BTreeMap<String, u64>,
     /// Inputs delivered but neither acked nor rejected (should be 0 once settled).
@@ -163,6 +165,9 @@ pub struct Prediction {
     pub interpolation_steady_samples: u64,
     /// Their error's 99th percentile, m (up to the stream's f32).
     pub interpolation_steady_m_p99: Option<f64>,
+    /// The others' (a bounce or a push between their frames, drawn on the straight line
+    /// between them): 99th percentile, m.
+    pub interpolation_changed_m_p99: Option<f64>,
 }
 
 /// The `q` quantile of `v` (sorted in place); `None` when empty.
@@ -231,8 +236,8 @@ impl std::fmt::Display for Report {
         )?;
         writeln!(
             f,
-            "  inputs   sent {} ({} copies again) | lost in the network {} ({} messages) | delivered {} ({} twice) | acked {} | unanswered {} | answered unexpectedly {}",
-            self.inputs_sent, self.input_copies_sent, self.inputs_lost_in_network, self.messages_lost_in_network, self.inputs_delivered, self.inputs_duplicated, self.acks, self.inputs_unanswered, self.answers_unexpected
+            "  inputs   sent {} ({} copies again) | lost in the network {} ({} messages) | delivered {} ({} twice) | acked {} ({} acks lost, told by the next) | unanswered {} | answered unexpectedly {}",
+            self.inputs_sent, self.input_copies_sent, self.inputs_lost_in_network, self.messages_lost_in_network, self.inputs_delivered, self.inputs_duplicated, self.acks, self.acks_recovered, self.inputs_unanswered, self.answers_unexpected
         )?;
         let rejects: Vec<String> = self.rejects.iter().map(|(k, v)| format!("{k} {v}")).collect();
         writeln!(f, "  rejects  {}", if rejects.is_empty() { "none".into() } else { rejects.join(", ") })?;
@@ -315,12 +320,13 @@ impl std::fmt::Display for Report {
             )?;
             writeln!(
                 f,
-                "  interp   {} bodies drawn vs the server: p50 {} p99 {} | steady {}: p99 {}",
+                "  interp   {} bodies drawn vs the server: p50 {} p99 {} | steady {}: p99 {} | the others p99 {}",
                 p.interpolation_samples,
                 mm(p.interpolation_error_m_p50),
                 mm(p.interpolation_error_m_p99),
                 p.interpolation_steady_samples,
-                mm(p.interpolation_steady_m_p99)
+                mm(p.interpolation_steady_m_p99),
+                mm(p.interpolation_changed_m_p99)
             )?;
         }
         if self.state_frames > 0 {

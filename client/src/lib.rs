@@ -12,7 +12,7 @@
 //!   (behind, or ahead by the lead the acks recommend, moved by time dilation).
 //! - [`events`]: the event view, provisional events with corrections applied by identity, and
 //!   each confirmed tick compared with the view.
-//! - [`netsim`]: a network model (latency, jitter, loss) for testing a game locally.
+//! - [`netsim`]: a network model (latency, jitter, loss, stalls) for testing a game locally.
 //!
 //! - [`predict`]: the player's own avatar stepped with the server's core, checked against every
 //!   state the server streams, corrected by replay and eased.

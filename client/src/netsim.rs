@@ -2,8 +2,9 @@
 //! behind): a delay line whose items come out when their time is due, in the order they went in.
 //! It models one direction of a stream (Zenoh over TCP) with latency, jitter and loss: jitter
 //! moves delivery times but never reorders, because a stream does not (a message waits behind a
-//! slower one before it, head-of-line). The caller passes the time in; nothing here reads a
-//! clock. Bounded: past `capacity` items, new ones are dropped and counted.
+//! slower one before it, head-of-line), and stalls ([`DelayLine::stall_until`]: nothing comes out
+//! until it ends, then what was due comes out in order, as a stream does once a stalled link
+//! recovers). The caller passes the time in; nothing here reads a clock. Bounded: past `capacity` items, new ones are dropped and counted.
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -46,6 +47,7 @@ pub struct DelayLine<T> {
     free: Vec<usize>,
     seq: u64,
     last_due: Option<Instant>,
+    stalled_until: Option<Instant>,
     capacity: usize,
     /// Items dropped by the loss model.
     pub lost: u64,
@@ -62,6 +64,7 @@ impl<T> DelayLine<T> {
             free: Vec::new(),
             seq: 0,
             last_due: None,
+            stalled_until: None,
             capacity,
             lost: 0,
             overflow: 0,
@@ -97,8 +100,17 @@ impl<T> DelayLine<T> {
         true
     }
 
-    /// The next item due at or before `now`.
+    /// Stalls the line until `until`: nothing comes out before it (a stall already longer
+    /// stays); what was due meanwhile comes out then, in order.
+    pub fn stall_until(&mut self, until: Instant) {
+        self.stalled_until = Some(self.stalled_until.map_or(until, |t| t.max(until)));
+    }
+
+    /// The next item due at or before `now` (none while stalled).
     pub fn pop_due(&mut self, now: Instant) -> Option<T> {
+        if self.stalled_until.is_some_and(|t| now < t) {
+            return None;
+        }
         let Reverse((due, _, slot)) = *self.heap.peek()?;
         if due > now {
             return None;
@@ -151,6 +163,21 @@ mod tests {
             out.push(x);
         }
         assert_eq!(out, (0..500).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn a_stall_holds_everything_then_delivers_it_in_order() {
+        let mut d = DelayLine::new(16);
+        let mut rng = Rng::new(1);
+        let t0 = Instant::now();
+        let ms = |m: u64| t0 + Duration::from_millis(m);
+        let link = Link { latency: Duration::from_millis(10), jitter: Duration::ZERO, loss: 0.0 };
+        d.send(t0, &link, &mut rng, 1);
+        d.stall_until(ms(500));
+        d.stall_until(ms(200));
+        d.send(ms(100), &link, &mut rng, 2);
+        assert_eq!(d.pop_due(ms(499)), None, "stalled (the shorter stall does not shorten it)");
+        assert_eq!((d.pop_due(ms(500)), d.pop_due(ms(500)), d.pop_due(ms(500))), (Some(1), Some(2), None));
     }
 
     #[test]

@@ -76,6 +76,12 @@ pub struct Answer {
     pub outcome: Outcome,
 }
 
+/// The seqs an ack of `seq` says were accepted before it (`InputAck::accepted_before`), nearest
+/// first.
+pub fn accepted_before(seq: u32, bits: u64) -> impl Iterator<Item = u32> {
+    (0..64u32).filter(move |k| bits & (1 << k) != 0).filter_map(move |k| seq.checked_sub(k + 1))
+}
+
 /// What the server did with an input.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Outcome {
@@ -87,6 +93,9 @@ pub enum Outcome {
         /// Arrival margin, ticks.
         margin_ticks: i32,
     },
+    /// Accepted, as a later ack said (`accepted_before`): its own ack was lost on the way, so
+    /// the tick it was applied at and its margin are not known.
+    AckLost,
     /// Refused, for this reason (PROTOCOL.md, "Rejects").
     Rejected(RejectReason),
 }
@@ -158,8 +167,10 @@ pub struct SessionStats {
     pub welcomes: u64,
     /// Inputs given to the transport (each once, however many times it is carried).
     pub inputs_sent: u64,
-    /// Inputs acknowledged.
+    /// Inputs acknowledged (those whose own ack was lost and a later one told included).
     pub inputs_acked: u64,
+    /// Of them, inputs whose ack was lost and a later ack told accepted (`accepted_before`).
+    pub acks_recovered: u64,
     /// Acked inputs that arrived after their tick had begun (`margin_ticks < 0`): the server
     /// rolled back for each.
     pub late_acks: u64,
@@ -211,11 +222,13 @@ pub struct PredictionStats {
     pub exact: u64,
     /// States taken without a prediction to compare (the first, a new avatar).
     pub taken: u64,
-    /// Mispredictions by cause: `other_body` (another body collided with the avatar, by its
-    /// events, or came within reach of it around that tick: the predictor simulates no other
-    /// body), `input_late` (one of the
-    /// client's inputs before that tick had not been applied on time), `unexplained` (none of
-    /// these: a bug, since the core is deterministic).
+    /// Mispredictions by cause, each classified when the next state arrives (what explains it,
+    /// an event correction or an ack, travels on other keys and may come just after it):
+    /// `other_body` (another body collided with the avatar, by its events, or came within reach
+    /// of it around that tick: the predictor simulates no other body), `input_late` (one of the
+    /// client's inputs before that tick is unanswered, or was applied late within the rollback
+    /// window and an eighth of a second before it), `unexplained` (none of these: a bug, since
+    /// the core is deterministic).
     pub causes: BTreeMap<&'static str, u64>,
     /// The error of every compared state, m (0 when exact), in arrival order.
     pub errors_m: Vec<f64>,
@@ -224,6 +237,16 @@ pub struct PredictionStats {
     /// The largest distance the easing of a correction moved the drawn avatar in one frame,
     /// scaled to a 60 Hz frame (the easing's speed over a sixtieth of a second), m.
     pub max_frame_correction_m: f64,
+}
+
+/// A misprediction awaiting its cause.
+#[derive(Clone, Copy, Debug)]
+struct Miss {
+    tick: Tick,
+    entity: EntityId,
+    /// Another body was drawn within reach of it.
+    near: bool,
+    error: f64,
 }
 
 /// One client's session (see the module docs).
@@ -254,6 +277,8 @@ pub struct Session {
     /// Ticks of inputs acked late (rolled back on the server), for the causes of mispredictions.
     late_ticks: VecDeque<Tick>,
     last_drawn: Option<Instant>,
+    /// The last misprediction, classified when the next state comes.
+    unclassified: Option<Miss>,
     /// When a full state frame was last asked for.
     full_asked: Option<Instant>,
 }
@@ -284,6 +309,7 @@ impl Session {
             prediction_problem: None,
             late_ticks: VecDeque::new(),
             last_drawn: None,
+            unclassified: None,
             full_asked: None,
         }
     }
@@ -340,62 +366,77 @@ impl Session {
             Reconciled::Exact => 0.0,
             Reconciled::Corrected(e) => e,
         };
+        // The last misprediction's cause, now that what explains it has had time to come.
+        if let Some(m) = self.unclassified.take() {
+            self.classify(m);
+        }
         let st = &mut self.prediction;
         st.compared += 1;
         if st.errors_m.len() < MAX_PREDICTION_SAMPLES {
             st.errors_m.push(error);
         }
-        let cause = if error == 0.0 {
+        if error == 0.0 {
             st.exact += 1;
-            None
-        } else if self.late_ticks.iter().any(|&t| t < tick) || self.outbox.pending_ticks().any(|t| t < tick) {
-            Some("input_late")
-        } else if self.other_body_near(tick, s) {
-            Some("other_body")
+            if st.errors_untouched_m.len() < MAX_PREDICTION_SAMPLES {
+                st.errors_untouched_m.push(0.0);
+            }
         } else {
-            Some("unexplained")
+            // What the stream drew is judged now, while its frames around the tick are held.
+            let near = self.body_within_reach(tick, s.entity, s.position);
+            self.unclassified = Some(Miss { tick, entity: s.entity, near, error });
+        }
+    }
+
+    /// Puts a misprediction down to its cause. It is classified one state later: the event
+    /// corrections and acks that explain it travel on other keys than the state stream, and a
+    /// correction published with the state of the same tick can arrive after it.
+    fn classify(&mut self, m: Miss) {
+        let cause = if self.late_ticks.iter().any(|&t| t < m.tick) || self.outbox.pending_ticks().any(|t| t < m.tick) {
+            "input_late"
+        } else if m.near || self.collided(m.tick, m.entity) {
+            "other_body"
+        } else {
+            "unexplained"
         };
         let st = &mut self.prediction;
-        if let Some(c) = cause {
-            *st.causes.entry(c).or_insert(0) += 1;
+        *st.causes.entry(cause).or_insert(0) += 1;
+        if cause == "unexplained" && st.errors_untouched_m.len() < MAX_PREDICTION_SAMPLES {
+            st.errors_untouched_m.push(m.error);
         }
-        if matches!(cause, None | Some("unexplained")) && st.errors_untouched_m.len() < MAX_PREDICTION_SAMPLES {
-            st.errors_untouched_m.push(error);
-        }
-        while self.late_ticks.front().is_some_and(|&t| t < tick) {
+        // A late input explains the states after it until the server's states include it: it
+        // was applied at most a window late, and the next states still differ from a prediction
+        // replayed from one that did not.
+        let keep = self.welcome.as_ref().map_or(24, |w| w.window_ticks + w.tick_hz / 8);
+        while self.late_ticks.front().is_some_and(|&t| t.0.saturating_add(keep) < m.tick.0) {
             self.late_ticks.pop_front();
         }
     }
 
-    /// Whether another body touched the avatar in the ticks before `tick` (a collision event of
-    /// the avatar's: the stream may not carry the body, past the client's byte budget) or came
-    /// within reach of it (as the stream drew them: the server's at its frames).
-    fn other_body_near(&self, tick: Tick, s: &impact_protocol::AvatarState) -> bool {
+    /// Whether one of the avatar's collision events (a body touched it: the stream may not
+    /// carry the body, past the client's byte budget) falls in the eighth of a second before
+    /// `tick`.
+    fn collided(&self, tick: Tick, entity: EntityId) -> bool {
         let since = self.welcome.as_ref().map_or(8, |w| w.tick_hz / 8);
-        let collided = (tick.0.saturating_sub(since)..=tick.0).any(|t| {
-            self.events
-                .at(Tick(t))
-                .any(|e| e.phase != impact_protocol::Phase::Hit && (e.a == s.entity || e.b == s.entity))
-        });
-        if collided {
-            return true;
-        }
+        (tick.0.saturating_sub(since)..=tick.0).any(|t| {
+            self.events.at(Tick(t)).any(|e| e.phase != impact_protocol::Phase::Hit && (e.a == entity || e.b == entity))
+        })
+    }
+
+    /// Whether another body of the remote world came within reach of the avatar at `at` in the
+    /// eighth of a second before `tick` (as the stream drew them: the server's at its frames).
+    fn body_within_reach(&self, tick: Tick, entity: EntityId, at: [f64; 3]) -> bool {
+        let since = self.welcome.as_ref().map_or(8, |w| w.tick_hz / 8);
         let Some(r) = &self.remote else { return false };
         let size = |e| r.info(e).map_or(0.5, |i| f64::from(i.half_extents_m.iter().copied().fold(0.0f32, f32::max)));
-        let me = size(s.entity);
-        let at = s.position;
+        let me = size(entity);
         let mut drawn = Vec::new();
-        for k in 0..=since {
+        (0..=since).any(|k| {
             r.draw(f64::from(tick.0.saturating_sub(k)), &mut drawn);
-            let near = drawn.iter().filter(|b| b.entity != s.entity).any(|b| {
+            drawn.iter().filter(|b| b.entity != entity).any(|b| {
                 let d = (0..3).map(|i| (b.position[i] - at[i]).powi(2)).sum::<f64>().sqrt();
                 d < me + size(b.entity) + 0.5
-            });
-            if near {
-                return true;
-            }
-        }
-        false
+            })
+        })
     }
 
     /// The configuration.
@@ -461,11 +502,12 @@ impl Session {
 
     fn answered(&mut self, seq: u32, sent: Sent, outcome: Outcome, now: Instant) {
         if let Some(p) = self.predictor.as_mut() {
-            let applied = match outcome {
-                Outcome::Accepted { applied_tick, .. } => Some(applied_tick),
-                Outcome::Rejected(_) => None,
-            };
-            p.answered(seq, applied);
+            match outcome {
+                Outcome::Accepted { applied_tick, .. } => p.answered(seq, Some(applied_tick)),
+                Outcome::Rejected(_) => p.answered(seq, None),
+                // Applied, most likely at its tick: the prediction keeps it where it is.
+                Outcome::AckLost => {}
+            }
         }
         if self.answers.len() >= MAX_ANSWERS {
             self.answers.pop_front();
@@ -519,6 +561,15 @@ impl Session {
                     self.answered(a.seq, sent, outcome, now);
                 } else {
                     self.stats.unmatched_answers += 1;
+                }
+                // Inputs before it the server accepted whose own acks never came.
+                for seq in accepted_before(a.seq, a.accepted_before) {
+                    if let Some(sent) = self.outbox.answered(seq) {
+                        self.resend.retain(|i| i.seq != seq);
+                        self.stats.inputs_acked += 1;
+                        self.stats.acks_recovered += 1;
+                        self.answered(seq, sent, Outcome::AckLost, now);
+                    }
                 }
             }
             ServerMessage::Reject(j) if j.client == me => {
@@ -729,6 +780,7 @@ mod tests {
             server_tick: Tick(server_tick),
             margin_ticks: 0,
             lead_ticks: lead,
+            accepted_before: 0,
         })
     }
 
@@ -837,8 +889,16 @@ mod tests {
         };
         s.receive(ServerMessage::Reject(reject), later);
         s.receive(ack(a, 102, 4), later);
+        // Two more inputs; the first one's ack is lost, the second's says it was accepted.
+        let (c, d) = (s.input(walk(), t).unwrap(), s.input(walk(), t).unwrap());
+        let ServerMessage::Ack(mut told) = ack(d, 103, 4) else { unreachable!() };
+        told.accepted_before = 1 << (d - c - 1) | 1 << (d - a - 1);
+        s.receive(ServerMessage::Ack(told), later);
+        assert_eq!(s.pending_inputs(), 0);
+        assert_eq!((s.stats().inputs_acked, s.stats().acks_recovered), (3, 1), "a was acked already");
         let answers: Vec<Answer> = s.take_answers().collect();
-        assert_eq!(answers.len(), 2);
+        assert_eq!(answers.len(), 4);
+        assert_eq!((answers[3].seq, answers[3].outcome), (c, Outcome::AckLost));
         assert_eq!(answers[0].seq, a);
         assert_eq!(answers[0].outcome, Outcome::Accepted { applied_tick: Tick(101), margin_ticks: 0 });
         assert_eq!(answers[0].round_trip, Duration::from_millis(90));
@@ -852,18 +912,11 @@ mod tests {
     /// carried); a shot that hit the avatar moves nothing and explains nothing.
     #[test]
     fn the_avatars_collisions_explain_a_misprediction() {
-        use impact_protocol::{AvatarState, CollisionEvent, EventBatch, EventStatus, Phase, Response};
+        use impact_protocol::{CollisionEvent, EventBatch, EventStatus, Phase, Response};
         let t0 = Instant::now();
         let mut s = Session::new(SessionConfig::new(ClientId(7)));
         s.receive(welcome(0), t0);
-        let me = AvatarState {
-            entity: EntityId(3),
-            position: [0.0; 3],
-            velocity: [0.0; 3],
-            asleep: false,
-            still_ticks: 0,
-            touching: vec![],
-        };
+        let me = EntityId(3);
         let event = |tick: u32, phase: Phase| {
             let e = CollisionEvent {
                 tick: Tick(tick),
@@ -881,12 +934,12 @@ mod tests {
             ServerMessage::Events(EventBatch { tick: Tick(tick), revision: 0, events: vec![e] })
         };
         s.receive(event(120, Phase::Hit), t0);
-        assert!(!s.other_body_near(Tick(122), &me), "a shot");
+        assert!(!s.collided(Tick(122), me), "a shot");
         s.receive(event(100, Phase::Begin), t0);
-        assert!(!s.other_body_near(Tick(122), &me), "too long before (64 Hz: 8 ticks)");
-        assert!(s.other_body_near(Tick(104), &me));
+        assert!(!s.collided(Tick(122), me), "too long before (64 Hz: 8 ticks)");
+        assert!(s.collided(Tick(104), me));
         s.receive(event(118, Phase::End), t0);
-        assert!(s.other_body_near(Tick(122), &me));
+        assert!(s.collided(Tick(122), me));
     }
 
     /// Nothing for another client changes the session; an unknown kind is skipped and counted.

@@ -60,6 +60,7 @@ fn main() {
         server_tick: Tick(1198),
         margin_ticks: 2,
         lead_ticks: 12,
+        accepted_before: 0b1011,
     });
     // A client's state stream: a delta in which a ball entered its area, its own avatar moved,
     // and a bolt left.

@@ -178,6 +178,11 @@ pub struct InputAck {
     /// view_tick` at arrival): the largest of the last 32, plus one.
     #[serde(default)]
     pub lead_ticks: u32,
+    /// Which of the 64 seqs before `seq` the server has accepted: bit `k` is seq `seq - 1 - k`.
+    /// A repeat of an accepted input is skipped without an answer, so an ack lost on the way
+    /// would never come again; the next ack says it instead.
+    #[serde(default)]
+    pub accepted_before: u64,
 }
 
 /// Why an input was refused.

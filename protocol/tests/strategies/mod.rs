@@ -152,17 +152,20 @@ fn corrections() -> impl Strategy<Value = ServerMessage> {
 }
 
 fn ack() -> impl Strategy<Value = ServerMessage> {
-    (client(), any::<u32>(), tick(), tick(), tick()).prop_map(|(client, seq, tick, applied_tick, server_tick)| {
-        ServerMessage::Ack(InputAck {
-            client,
-            seq,
-            tick,
-            applied_tick,
-            server_tick,
-            margin_ticks: applied_tick.0.wrapping_sub(server_tick.0) as i32,
-            lead_ticks: seq % 17,
-        })
-    })
+    (client(), any::<u32>(), tick(), tick(), tick(), any::<u64>()).prop_map(
+        |(client, seq, tick, applied_tick, server_tick, accepted_before)| {
+            ServerMessage::Ack(InputAck {
+                client,
+                seq,
+                tick,
+                applied_tick,
+                server_tick,
+                margin_ticks: applied_tick.0.wrapping_sub(server_tick.0) as i32,
+                lead_ticks: seq % 17,
+                accepted_before,
+            })
+        },
+    )
 }
 
 fn reject() -> impl Strategy<Value = ServerMessage> {

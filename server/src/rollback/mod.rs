@@ -613,6 +613,12 @@ impl Session {
         self.windows.get(&client).map_or(0, seq_window::SeqWindow::next_seq)
     }
 
+    /// Which of `client`'s 64 seqs below `seq` were accepted: bit `k` is seq `seq - 1 - k`
+    /// (an ack carries it, so a lost ack is recovered from the next).
+    pub fn accepted_before(&self, client: ClientId, seq: u32) -> u64 {
+        self.windows.get(&client).map_or(0, |w| w.accepted_before(seq))
+    }
+
     /// Whether `seq` of `client` was accepted already (and is still told apart by its replay
     /// window): a repeat the runtime skips without an answer, as the redundant copies in an
     /// input batch are. A seq below the window's floor is not a repeat: [`Session::submit`]

@@ -71,6 +71,16 @@ impl SeqWindow {
         self.set(seq, true);
     }
 
+    /// Which of the 64 seqs below `seq` were accepted: bit `k` is seq `seq - 1 - k` (what an
+    /// ack carries, so a lost one is recovered from the next).
+    pub fn accepted_before(&self, seq: u32) -> u64 {
+        let Some(h) = self.highest else { return 0 };
+        (0..64u32)
+            .filter_map(|k| seq.checked_sub(k + 1).map(|s| (k, s)))
+            .filter(|&(_, s)| s <= h && h - s < WINDOW && self.bit(s))
+            .fold(0, |bits, (k, _)| bits | 1 << k)
+    }
+
     /// The lowest seq above every accepted one: where a reconnecting client resumes.
     pub fn next_seq(&self) -> u32 {
         self.highest.map_or(0, |h| h.saturating_add(1))
@@ -135,6 +145,13 @@ mod tests {
                     accepted.insert(seq);
                 }
                 prop_assert_eq!(w.next_seq(), accepted.last().map_or(0, |h| h + 1));
+                // What an ack of `seq` says of the 64 seqs before it: those the model holds
+                // accepted and the window still tells apart.
+                let told: u64 = (0..64u32)
+                    .filter_map(|k| seq.checked_sub(k + 1).map(|s| (k, s)))
+                    .filter(|&(_, s)| model(&accepted, s) == Err(Replay::Seen))
+                    .fold(0, |bits, (k, _)| bits | 1 << k);
+                prop_assert_eq!(w.accepted_before(seq), told, "seq {}", seq);
             }
         }
     }

@@ -31,6 +31,12 @@ pub fn zenoh_config(file: Option<&Path>, listen: &[String], connect: &[String]) 
             // A lost router (restarted, say) is tried again every 100 ms doubling to 500 ms, not
             // Zenoh's 1 s doubling to 4 s: its clients are back within a second of it.
             c.insert_json5("connect/retry", RETRY).map_err(|e| err("retry", e))?;
+            // Replies come in bursts (a partition heals and a second of inputs is answered in one
+            // tick, each refused copy too), and Zenoh drops what its queue of two 64 KB batches
+            // cannot take within a millisecond: acks and rejects lost for good. Sixteen batches,
+            // allocated only when a burst needs them (lazily: Zenoh's default), bound a link's
+            // queue at 1 MiB.
+            c.insert_json5("transport/link/tx/queue/size/data", "16").map_err(|e| err("queue size", e))?;
             c
         }
     };

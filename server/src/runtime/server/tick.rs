@@ -442,6 +442,7 @@ impl TickLoop {
                         server_tick: now,
                         margin_ticks,
                         lead_ticks,
+                        accepted_before: self.session.accepted_before(client, seq),
                     });
                     // Sent after the admitted log (see `publish_admitted`).
                     self.acks.push((ack_key, ack, encoding));
