@@ -74,9 +74,15 @@ fn p99(mut v: Vec<f64>) -> Option<f64> {
 }
 
 /// Every third input fires at the nearest other body drawn, from where the avatar is drawn (`me`,
-/// predicted; or as the stream shows it);
-/// the others circle at 6 m/s, bobbing up and down.
-fn next_action(drawn: &[DrawnBody], me: Option<[f64; 3]>, avatar: EntityId, inputs: u64, t: f64) -> Action {
+/// predicted; or as the stream shows it), and says which; the others circle at 6 m/s, bobbing up
+/// and down.
+fn next_action(
+    drawn: &[DrawnBody],
+    me: Option<[f64; 3]>,
+    avatar: EntityId,
+    inputs: u64,
+    t: f64,
+) -> (Action, Option<EntityId>) {
     let me = me.or_else(|| drawn.iter().find(|b| b.entity == avatar).map(|b| b.position));
     if let Some(p) = me.filter(|_| inputs % 3 == 0) {
         let target = drawn
@@ -88,13 +94,11 @@ fn next_action(drawn: &[DrawnBody], me: Option<[f64; 3]>, avatar: EntityId, inpu
         if let Some((b, d)) = target {
             let d = d.sqrt();
             let direction = [0, 1, 2].map(|k| (b.position[k] - p[k]) / d);
-            return Action::FireRay { shooter: avatar, origin: p, direction, max_distance_m: 60.0 };
+            return (Action::FireRay { shooter: avatar, origin: p, direction, max_distance_m: 60.0 }, Some(b.entity));
         }
     }
-    Action::SetVelocity {
-        entity: avatar,
-        velocity: [6.0 * (0.7 * t).cos(), 2.0 * (1.3 * t).sin(), 6.0 * (0.7 * t).sin()],
-    }
+    let velocity = [6.0 * (0.7 * t).cos(), 2.0 * (1.3 * t).sin(), 6.0 * (0.7 * t).sin()];
+    (Action::SetVelocity { entity: avatar, velocity }, None)
 }
 
 /// A drawn world awaiting the server's positions at the same tick.
@@ -128,24 +132,12 @@ impl Check {
     }
 }
 
-fn play(a: &Args) -> Result<(), Box<dyn std::error::Error>> {
-    let world = WorldId::new(&a.world)?;
-    let client = ClientId(a.client.unwrap_or(100_000 + std::process::id() % 100_000));
-    let mut opts = ConnectOptions::new(a.connect.clone(), world.clone(), client);
-    opts.mode = if a.router { Mode::Client } else { Mode::Peer };
-    opts.credentials = a.user.clone().zip(a.password.clone()).map(|(user, password)| Credentials { user, password });
-    let conn = Connection::open(&opts)?;
-    let mut game = Session::new(SessionConfig::new(client));
-    if !a.no_predict {
-        let path = a.scene.clone().unwrap_or_else(|| Scene::bundled_path(&a.world));
-        let scene = Scene::load(&path)?;
-        game.predict_with(Predictor::new(&scene, client, PredictConfig::default())?);
-    }
-
+/// Pumps until the session plays (at most 10 s), then says how it joined.
+fn join(conn: &Connection, game: &mut Session, client: ClientId) -> Result<(), Box<dyn std::error::Error>> {
     let frame = Duration::from_secs_f64(1.0 / 60.0);
     let joined_by = Instant::now() + Duration::from_secs(10);
     while game.status() != Status::Playing {
-        conn.pump(&mut game, Instant::now())?;
+        conn.pump(game, Instant::now())?;
         if Instant::now() > joined_by {
             return Err(
                 format!("no welcome within 10 s (status {:?}): is the scene spawning avatars?", game.status()).into()
@@ -166,6 +158,25 @@ fn play(a: &Args) -> Result<(), Box<dyn std::error::Error>> {
         game.clock().lead().unwrap_or(0.0)
     );
 
+    Ok(())
+}
+
+fn play(a: &Args) -> Result<(), Box<dyn std::error::Error>> {
+    let world = WorldId::new(&a.world)?;
+    let client = ClientId(a.client.unwrap_or(100_000 + std::process::id() % 100_000));
+    let mut opts = ConnectOptions::new(a.connect.clone(), world.clone(), client);
+    opts.mode = if a.router { Mode::Client } else { Mode::Peer };
+    opts.credentials = a.user.clone().zip(a.password.clone()).map(|(user, password)| Credentials { user, password });
+    let conn = Connection::open(&opts)?;
+    let mut game = Session::new(SessionConfig::new(client));
+    if !a.no_predict {
+        let path = a.scene.clone().unwrap_or_else(|| Scene::bundled_path(&a.world));
+        let scene = Scene::load(&path)?;
+        game.predict_with(Predictor::new(&scene, client, PredictConfig::default())?);
+    }
+
+    join(&conn, &mut game, client)?;
+    let frame = Duration::from_secs_f64(1.0 / 60.0);
     let start = Instant::now();
     let end = start + Duration::from_secs_f64(a.seconds);
     let input_every = Duration::from_secs_f64(1.0 / a.input_hz.max(0.1));
@@ -174,6 +185,7 @@ fn play(a: &Args) -> Result<(), Box<dyn std::error::Error>> {
     let mut drawn = Vec::new();
     let mut checks: Vec<Check> = Vec::new();
     let mut interpolation_errors = Vec::new();
+    let (mut aimed, mut shots, mut on_target) = (BTreeMap::new(), 0u64, 0u64);
     let mut steady_errors = Vec::new();
     let state_key = keys::QUERY_STATE.key(&world, None);
     while Instant::now() < end {
@@ -185,13 +197,22 @@ fn play(a: &Args) -> Result<(), Box<dyn std::error::Error>> {
         let me = game.draw_avatar(now);
         remote_bodies = drawn.len();
         frames += 1;
-        // A game shows its shots' results; the session counts hits.
-        game.take_ray_results().for_each(drop);
+        // A game shows its shots' results; the session counts hits. A hit on the body aimed at
+        // (as drawn) shows the shot was judged against what the player saw.
+        for r in game.take_ray_results() {
+            if let Some(target) = aimed.remove(&r.seq) {
+                on_target += u64::from(r.hit.is_some_and(|h| h.entity == target));
+            }
+        }
         if let (Some(avatar), true) = (game.avatar(), now >= next_input) {
             next_input += input_every;
             inputs += 1;
-            let action = next_action(&drawn, me, avatar, inputs, now.duration_since(start).as_secs_f64());
-            game.input(vec![action], now)?;
+            let (action, target) = next_action(&drawn, me, avatar, inputs, now.duration_since(start).as_secs_f64());
+            let seq = game.input(vec![action], now)?;
+            if let Some(t) = target {
+                aimed.insert(seq, t);
+                shots += 1;
+            }
         }
         // Twice a second: what was drawn at a whole tick, against the server's record of it.
         if let (true, Some(r)) = (now >= next_check, game.render_tick(now)) {
@@ -230,6 +251,8 @@ fn play(a: &Args) -> Result<(), Box<dyn std::error::Error>> {
         "events": s.events,
         "corrections": s.corrections,
         "hits": s.hits,
+        "shots": shots,
+        "hits_on_target": on_target,
         "remote_bodies": remote_bodies,
         "prediction_error_m_p99": p99(pr.errors_m.clone()),
         "prediction_error_untouched_m_p99": p99(pr.errors_untouched_m.clone()),

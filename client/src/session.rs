@@ -670,7 +670,9 @@ impl Session {
     }
 
     /// Numbers and stamps `actions` as the client's next input and queues it for the transport
-    /// (with the unanswered inputs before it). Returns its seq.
+    /// (with the unanswered inputs before it). An input that fires a ray carries the tick the
+    /// remote world is drawn at now (`aim_tick`), so the server rewinds the shot to what the
+    /// player saw. Returns its seq.
     pub fn input(&mut self, actions: Vec<Action>, now: Instant) -> Result<u32, InputError> {
         if actions.len() > MAX_ACTIONS_PER_INPUT {
             return Err(InputError::TooManyActions { count: actions.len() });
@@ -679,7 +681,11 @@ impl Session {
         let seq = self.outbox.next_seq();
         // Behind, the view tick is the input's own: saying so again would change nothing.
         let view_tick = self.cfg.ahead.then_some(view);
-        let input = ClientInput { client: self.cfg.client, seq, tick, view_tick, actions };
+        // A shot is aimed at the remote world as drawn, an interpolation delay behind the view:
+        // the server rewinds it there.
+        let fires = actions.iter().any(|a| matches!(a, Action::FireRay { .. }));
+        let aim_tick = self.render_tick(now).filter(|_| fires).map(|r| Tick(r.floor().max(0.0) as u32));
+        let input = ClientInput { client: self.cfg.client, seq, tick, view_tick, aim_tick, actions };
         self.outbox.sent(seq, Sent { at: now, tick, view: view_tick });
         if let Some(p) = self.predictor.as_mut() {
             p.input(tick, seq, &input.actions);
@@ -940,6 +946,29 @@ mod tests {
         assert!(s.collided(Tick(104), me));
         s.receive(event(118, Phase::End), t0);
         assert!(s.collided(Tick(122), me));
+    }
+
+    /// A shot carries the tick the remote world is drawn at (the server rewinds it there), an
+    /// interpolation delay behind the view tick; a move carries none.
+    #[test]
+    fn a_shot_carries_the_tick_it_was_aimed_at() {
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig::new(ClientId(7)));
+        s.receive(welcome(0), t0);
+        let t = t0 + SYNC_TIMEOUT;
+        while s.poll_transmit(t).is_some() {}
+        let shot =
+            Action::FireRay { shooter: EntityId(3), origin: [0.0; 3], direction: [1.0, 0.0, 0.0], max_distance_m: 9.0 };
+        s.input(vec![shot], t).unwrap();
+        let Some(ClientMessage::Input(i)) = s.poll_transmit(t) else { panic!("the shot") };
+        let drawn = s.render_tick(t).unwrap();
+        assert_eq!(i.aim_tick, Some(Tick(drawn.floor() as u32)));
+        // 100 ms at 64 Hz: 6.4 ticks behind the view.
+        assert_eq!(i.view_tick.unwrap().0 - i.aim_tick.unwrap().0, 7);
+        s.receive(ack(i.seq, 100, 4), t);
+        s.input(walk(), t).unwrap();
+        let Some(ClientMessage::Input(w)) = s.poll_transmit(t) else { panic!("the walk") };
+        assert_eq!(w.aim_tick, None);
     }
 
     /// Nothing for another client changes the session; an unknown kind is skipped and counted.

@@ -12,6 +12,7 @@ fn hex(bytes: &[u8]) -> String {
 fn main() {
     // An ahead client: looking at tick 1188, it stamps 1188 + its lead of 12.
     let input = ClientMessage::Input(ClientInput {
+        aim_tick: None,
         client: ClientId(7),
         seq: 42,
         tick: Tick(1200),

@@ -87,6 +87,19 @@ pub struct ClientInput {
     pub view_tick: Option<Tick>,
     /// What to do, in order; at most [`MAX_ACTIONS_PER_INPUT`](crate::limits::MAX_ACTIONS_PER_INPUT).
     pub actions: Vec<Action>,
+    /// (Last, so serde's positional form of the fields before it is unchanged.) The tick of the world the player aimed at, when it is not `view_tick`: a client draws
+    /// other bodies an interpolation delay behind its view, so it aims at that past. Hitscan
+    /// rays are rewound here (within the server's rewind limit); the lead is still measured
+    /// from `view_tick`. Optional: absent means `view_tick`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub aim_tick: Option<Tick>,
+}
+
+impl ClientInput {
+    /// The tick its hitscan rays are rewound to: `aim_tick`, else `view_tick`.
+    pub fn rewind_tick(&self) -> Option<Tick> {
+        self.aim_tick.or(self.view_tick)
+    }
 }
 
 /// Server -> clients.

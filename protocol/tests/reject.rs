@@ -9,7 +9,14 @@ use impact_protocol::*;
 use proptest::prelude::*;
 
 fn input(actions: Vec<Action>) -> ClientMessage {
-    ClientMessage::Input(ClientInput { view_tick: None, client: ClientId(1), seq: 9, tick: Tick(5), actions })
+    ClientMessage::Input(ClientInput {
+        aim_tick: None,
+        view_tick: None,
+        client: ClientId(1),
+        seq: 9,
+        tick: Tick(5),
+        actions,
+    })
 }
 
 fn decode_client(bytes: &[u8], enc: Encoding) -> Result<ClientMessage, ProtocolError> {

@@ -46,6 +46,7 @@ proptest! {
 #[test]
 fn messages_are_tagged_maps() {
     let msg = ClientMessage::Input(ClientInput {
+        aim_tick: None,
         view_tick: None,
         client: ClientId(7),
         seq: 1,

@@ -63,7 +63,7 @@ pub fn read_inputs(path: &Path) -> Result<InputScript, OfflineError> {
             // Each (client, seq) applies once, as on a server: a batch repeats earlier inputs.
             if seen.insert((input.client, input.seq)) {
                 script.entry(input.tick.0).or_default().push(TickInput {
-                    view_tick: input.view_tick,
+                    view_tick: input.rewind_tick(),
                     ..TickInput::new(input.client, input.seq, input.actions)
                 });
             }

@@ -344,6 +344,7 @@ pub fn elastic(n: u32, ticks: u32) -> CaseResult {
 /// changes every tick (shared with the thread-count test).
 pub fn stress_input(player: EntityId, t: u32) -> ClientInput {
     ClientInput {
+        aim_tick: None,
         view_tick: None,
         client: ClientId(1),
         seq: t,

@@ -76,6 +76,7 @@ fn a_late_rewound_shot_is_followed_as_the_primary_cast_it() {
     // outcome keeps the follower equal.
     let scene = range();
     let shot = ClientInput {
+        aim_tick: None,
         client: ClientId(1),
         seq: 1,
         tick: Tick(106),

@@ -174,6 +174,7 @@ fn input(t: u32, ball: EntityId) -> Option<ClientInput> {
         _ => return None,
     };
     Some(ClientInput {
+        aim_tick: None,
         view_tick: None,
         client: ClientId(1),
         seq: t,

@@ -77,7 +77,7 @@ fn window_edges_stale_clamp_future_duplicate() {
     assert_eq!(future.newest_tick, Some(Tick(48)));
     assert_eq!(s.submit(bat_input(4, 48, 1.0)), Ok(Tick(48)));
     assert_eq!(s.submit(bat_input(2, 30, 1.0)).unwrap_err().reason, RejectReason::Duplicate);
-    let not_owner = ClientInput { view_tick: None, client: ClientId(9), ..bat_input(5, 35, 1.0) };
+    let not_owner = ClientInput { aim_tick: None, view_tick: None, client: ClientId(9), ..bat_input(5, 35, 1.0) };
     assert_eq!(s.submit(not_owner).unwrap_err().reason, RejectReason::NotOwner);
     let too_fast = bat_input(6, 35, 1000.0);
     assert_eq!(s.submit(too_fast).unwrap_err().reason, RejectReason::OutOfRange);
@@ -196,6 +196,7 @@ fn range_at(now: u32) -> (Scene, Session) {
 /// The shooter's ray along +x, for `tick`, looking at `view` (None: behind mode).
 fn shot(tick: u32, view: Option<u32>) -> ClientInput {
     ClientInput {
+        aim_tick: None,
         client: ClientId(1),
         seq: tick,
         tick: Tick(tick),
@@ -299,6 +300,21 @@ fn a_rewound_shot_hits_where_the_shooter_saw_the_target_without_rolling_back() {
     assert_eq!(offline.state_hash, s.world().state_hash());
 }
 
+/// A client draws other bodies an interpolation delay behind its view: a shot carries the tick
+/// it aimed at, and is rewound there, not to the view tick (where the target has moved on).
+#[test]
+fn a_shot_is_rewound_to_the_tick_it_was_aimed_at() {
+    let fire = |aim: Option<u32>| {
+        let (_, mut s) = range_at(106);
+        s.submit(ClientInput { aim_tick: aim.map(Tick), ..shot(106, Some(106)) }).unwrap();
+        s.advance().rays[0].clone()
+    };
+    let aimed = fire(Some(100));
+    assert_eq!(aimed.view_tick, Tick(100));
+    assert_eq!(aimed.hit.map(|h| h.entity), Some(EntityId(1)), "hit where it was drawn at tick 100");
+    assert!(fire(None).hit.is_none(), "at the view tick the target has moved on");
+}
+
 #[test]
 fn a_shot_from_beyond_the_rewind_limit_is_clamped_and_says_so() {
     // max_rewind_ms defaults to the window (250 ms: 16 ticks). Looking at tick 80 from tick 106
@@ -329,6 +345,7 @@ fn ahead_inputs_on_time_never_roll_back_and_equal_the_offline_run() {
     for k in 0..300u32 {
         if k % 5 == 0 {
             let input = ClientInput {
+                aim_tick: None,
                 view_tick: Some(Tick(k.saturating_sub(9))),
                 ..bat_input(k + 1, k + 3, f64::from(k % 7) - 3.0)
             };
@@ -363,6 +380,7 @@ fn memory_is_fixed_over_a_long_run() {
         if k % 7 == 0 && now > 20 {
             seq += 1;
             let input = ClientInput {
+                aim_tick: None,
                 view_tick: None,
                 client: ClientId(1),
                 seq,

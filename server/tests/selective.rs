@@ -80,7 +80,7 @@ proptest! {
                     } else {
                         Action::SetVelocity { entity, velocity: [vx, 0.0, vz] }
                     };
-                    let input = ClientInput { view_tick: None, client: ClientId(1), seq, tick: Tick(now - depth), actions: vec![action] };
+                    let input = ClientInput { aim_tick: None, view_tick: None, client: ClientId(1), seq, tick: Tick(now - depth), actions: vec![action] };
                     let a = full.submit(input.clone());
                     let b = sel.submit(input);
                     prop_assert_eq!(a, b);
@@ -117,8 +117,14 @@ fn failed_attempts_back_off_and_change_nothing() {
                 direction: [1.0, 0.3, 1.0],
                 max_distance_m: 60.0,
             };
-            let input =
-                ClientInput { view_tick: None, client: ClientId(1), seq, tick: Tick(now - 8), actions: vec![ray] };
+            let input = ClientInput {
+                aim_tick: None,
+                view_tick: None,
+                client: ClientId(1),
+                seq,
+                tick: Tick(now - 8),
+                actions: vec![ray],
+            };
             assert_eq!(full.submit(input.clone()), sel.submit(input));
         }
         let (a, b) = (full.advance(), sel.advance());

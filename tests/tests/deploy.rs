@@ -137,7 +137,14 @@ fn worlds_across_processes_on_a_router_mesh() {
             .unwrap_or_else(|| panic!("client {me} of world {world} was never welcomed"));
         // The world's tick now: the welcome's, plus the ticks since it came (64 Hz).
         let now = tick.0 + (at.elapsed().as_secs_f64() * 64.0) as u32;
-        let input = ClientInput { client: *me, seq: 0, tick: Tick(now + 2), view_tick: None, actions: Vec::new() };
+        let input = ClientInput {
+            aim_tick: None,
+            client: *me,
+            seq: 0,
+            tick: Tick(now + 2),
+            view_tick: None,
+            actions: Vec::new(),
+        };
         send(s, world, &input);
         let answer = mine.wait_for(Duration::from_secs(10), |key, m, _| match m {
             ServerMessage::Ack(a) if a.seq == 0 => Some((world_of(key), Ok(a.applied_tick))),
@@ -294,6 +301,7 @@ fn a_standby_takes_over_from_a_killed_primary() {
             let now = tick.0 + (at.elapsed().as_secs_f64() * 64.0) as u32 + 2;
             let v = ((rng >> 33) % 7) as f64 - 3.0;
             let input = ClientInput {
+                aim_tick: None,
                 client: p.id,
                 seq: p.next_seq,
                 tick: Tick(now),

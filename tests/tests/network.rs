@@ -37,6 +37,7 @@ fn an_input_is_acknowledged_and_moves_the_avatar() {
     let _token = join(&s, &world, me);
     let (avatar, tick) = welcome(&ack);
     let input = ClientInput {
+        aim_tick: None,
         view_tick: None,
         client: me,
         seq: 1,
@@ -116,6 +117,7 @@ velocity = [0.0, 0.0, 8.0]
     let target_time = at + Duration::from_secs_f64(f64::from(wait_ticks) / 64.0);
     std::thread::sleep(target_time.saturating_duration_since(Instant::now()));
     let shot = ClientInput {
+        aim_tick: None,
         view_tick: None,
         client: me,
         seq: 1,
@@ -170,7 +172,14 @@ fn bad_inputs_are_rejected_with_reasons_and_others_are_still_served() {
             })
             .expect("a reject")
     };
-    let input = |seq: u32, actions: Vec<Action>| ClientInput { view_tick: None, client: bad, seq, tick, actions };
+    let input = |seq: u32, actions: Vec<Action>| ClientInput {
+        aim_tick: None,
+        view_tick: None,
+        client: bad,
+        seq,
+        tick,
+        actions,
+    };
     let msgpack = |i: &ClientInput| rmp_serde::to_vec_named(&impact_protocol::ClientMessage::Input(i.clone())).unwrap();
     // Garbage bytes: nothing to match, so the documented nil placeholder.
     send_raw(&s, &world, bad, vec![0xc1, 0xff, 0x00, 0x13], Encoding::MsgPack);
@@ -203,6 +212,7 @@ fn bad_inputs_are_rejected_with_reasons_and_others_are_still_served() {
     assert_eq!((reason, seq, t), (RejectReason::Malformed, Some(6), Some(tick)), "{detail}");
     // Someone else's avatar.
     let foreign = ClientInput {
+        aim_tick: None,
         view_tick: None,
         client: bad,
         seq: 7,
@@ -212,13 +222,15 @@ fn bad_inputs_are_rejected_with_reasons_and_others_are_still_served() {
     send(&s, &world, &foreign, Encoding::MsgPack);
     assert_eq!(next_reject(&bad_ack).0, RejectReason::NotOwner);
     // Claiming to be another client on one's own key.
-    let spoof = ClientInput { view_tick: None, client: good, seq: 8, tick: Tick(tick.0 + 2), actions: vec![] };
+    let spoof =
+        ClientInput { aim_tick: None, view_tick: None, client: good, seq: 8, tick: Tick(tick.0 + 2), actions: vec![] };
     let bytes = impact_protocol::encode(&impact_protocol::ClientMessage::Input(spoof), Encoding::MsgPack).unwrap();
     send_raw(&s, &world, bad, bytes, Encoding::MsgPack);
     let (reason, seq, _, _) = next_reject(&bad_ack);
     assert_eq!((reason, seq), (RejectReason::NotOwner, Some(8)));
     // The other client is served throughout.
     let fine = ClientInput {
+        aim_tick: None,
         view_tick: None,
         client: good,
         seq: 1,

@@ -42,6 +42,7 @@ fn welcome(inbox: &Inbox) -> Option<(EntityId, Tick)> {
 
 fn walk(client: ClientId, seq: u32, tick: Tick, avatar: EntityId) -> ClientInput {
     ClientInput {
+        aim_tick: None,
         view_tick: None,
         client,
         seq,

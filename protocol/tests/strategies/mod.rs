@@ -60,7 +60,9 @@ pub fn client_input() -> impl Strategy<Value = ClientInput> {
         |(client, seq, tick, actions)| {
             // Every other input says what its client was looking at.
             let view_tick = (seq % 2 == 0).then_some(Tick(tick.0 / 2));
-            ClientInput { client, seq, tick, view_tick, actions }
+            // And every fourth what it aimed at, further back.
+            let aim_tick = (seq % 4 == 0).then_some(Tick(tick.0 / 3));
+            ClientInput { client, seq, tick, view_tick, aim_tick, actions }
         },
     )
 }
@@ -80,6 +82,7 @@ pub fn client_message() -> impl Strategy<Value = ClientMessage> {
                         seq: seq.wrapping_add(k as u32),
                         tick: Tick(tick.0.wrapping_add(k as u32)),
                         view_tick: None,
+                        aim_tick: None,
                         actions,
                     })
                     .collect();

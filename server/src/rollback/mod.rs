@@ -386,7 +386,8 @@ impl Session {
         }
         input::check(&self.world, input.client, &input.actions)
             .map_err(|(reason, detail)| Refusal::new(reason, detail))?;
-        let entry = TickInput { view_tick: input.view_tick, ..TickInput::new(input.client, input.seq, input.actions) };
+        let entry =
+            TickInput { view_tick: input.rewind_tick(), ..TickInput::new(input.client, input.seq, input.actions) };
         let held = if tick < now {
             &mut self.history.get_mut(tick).expect("ticks in [oldest, now) are in the history").inputs
         } else {

@@ -38,6 +38,7 @@ velocity = [0.0, 0.0, 8.0]
 /// In breakout, entity 6 is the bat, owned by client 1: input `seq` for `tick` sets its velocity.
 pub fn bat_input(seq: u32, tick: u32, vx: f64) -> ClientInput {
     ClientInput {
+        aim_tick: None,
         view_tick: None,
         client: ClientId(1),
         seq,

@@ -99,6 +99,7 @@ pub fn run(a: &RollbackArgs) -> Result<()> {
                     let now = s.now().0;
                     let v = if r % 2 == 0 { [2.0, 0.5, -1.0] } else { [-1.5, 0.0, 1.0] };
                     let input = ClientInput {
+                        aim_tick: None,
                         view_tick: None,
                         client: ClientId(1),
                         seq,

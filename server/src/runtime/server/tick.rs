@@ -414,7 +414,7 @@ impl TickLoop {
                 client,
                 seq,
                 tick,
-                view_tick: input.view_tick,
+                view_tick: input.rewind_tick(),
                 actions: input.actions.clone(),
                 rewound: Vec::new(),
             };
