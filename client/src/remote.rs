@@ -10,10 +10,12 @@
 //! from the frames that carried it):
 //!
 //! - between a sample `a` at or before `r` and the next one `b` after it: the body moved from `a`
-//!   at `a`'s velocity until something changed it, and reached `b` at `b`'s. Drawn at the blend of
-//!   `a` carried forward and `b` carried back, weighted by where `r` lies between them: exactly
-//!   the server's motion when nothing changed it in between (both carry to the same point), and a
-//!   continuous path through a collision instead of a jump;
+//!   at `a`'s velocity until something changed it, and reached `b` at `b`'s. When nothing changed
+//!   it, `a` carried forward and `b` carried back are the same point: the server's motion. When
+//!   it bounced, the two carried paths meet where it collided (within [`CROSSING_M`]): drawn on
+//!   `a`'s path before the meeting and `b`'s after, the server's motion again, corner and all.
+//!   When they pass apart (pushed over several ticks), drawn at their blend weighted by where `r`
+//!   lies between the samples: a continuous path instead of a jump;
 //! - after its last sample: carried forward at that sample's velocity. A delta carries a body
 //!   when its position or velocity moved more than 1 mm (1 mm/s) from what the stream last said,
 //!   or later when the byte budget held it back, so between its samples this is where the server
@@ -294,15 +296,52 @@ impl RemoteWorld {
             (None, _) => (first.at(r, dt), first.velocity, false),
             // Up to the stream's newest frame, the stream vouches that nothing changed it.
             (Some(a), None) => (a.at(r, dt), a.velocity, r <= newest),
-            (Some(a), Some(n)) => {
+            (Some(a), Some(n)) if a.velocity == n.velocity => {
+                // Nothing changed it: both carry to the same point (up to the stream's f32).
                 let (ta, tn) = (f64::from(a.tick.0), f64::from(n.tick.0));
                 let f = (r - ta) / (tn - ta);
                 let (pa, pn) = (a.at(r, dt), n.at(r, dt));
-                (std::array::from_fn(|k| pa[k] + (pn[k] - pa[k]) * f), a.velocity, a.velocity == n.velocity)
+                (std::array::from_fn(|k| pa[k] + (pn[k] - pa[k]) * f), a.velocity, true)
+            }
+            (Some(a), Some(n)) => {
+                let (ta, tn) = (f64::from(a.tick.0), f64::from(n.tick.0));
+                let (pa, pn) = (a.at(r, dt), n.at(r, dt));
+                match crossing(a, n, dt) {
+                    // The two carried paths meet where it collided: each drawn on its side.
+                    Some(tc) if r <= tc => (pa, a.velocity, false),
+                    Some(_) => (pn, n.velocity, false),
+                    // They pass apart (pushed, not bounced): blended, a continuous path.
+                    None => {
+                        let f = (r - ta) / (tn - ta);
+                        (std::array::from_fn(|k| pa[k] + (pn[k] - pa[k]) * f), a.velocity, false)
+                    }
+                }
             }
         };
         Some(DrawnBody { entity, position, velocity, extrapolated: render_tick > newest, steady })
     }
+}
+
+/// Carried paths closer than this where they pass are taken to meet (a collision between the
+/// samples; the stream's f32 and gravity's curve keep them a few millimetres apart): the body is
+/// drawn on each path on its side of the meeting, a step of at most this.
+pub const CROSSING_M: f64 = 0.01;
+
+/// The tick between samples `a` and `n` (whose velocities differ) at which `a` carried forward
+/// and `n` carried back come closest, if they come within [`CROSSING_M`] there.
+fn crossing(a: &Sample, n: &Sample, dt: f64) -> Option<f64> {
+    let (ta, tn) = (f64::from(a.tick.0), f64::from(n.tick.0));
+    let (pa, pn) = (a.at(ta, dt), n.at(ta, dt));
+    // The gap between the two paths, linear in the tick: d(t) = d0 + dv (t - ta).
+    let d0: [f64; 3] = std::array::from_fn(|k| pa[k] - pn[k]);
+    let dv: [f64; 3] = std::array::from_fn(|k| (a.velocity[k] - n.velocity[k]) * dt);
+    let vv: f64 = dv.iter().map(|x| x * x).sum();
+    if vv == 0.0 {
+        return None;
+    }
+    let t = (ta - d0.iter().zip(&dv).map(|(x, y)| x * y).sum::<f64>() / vv).clamp(ta, tn);
+    let gap = (0..3).map(|k| (d0[k] + dv[k] * (t - ta)).powi(2)).sum::<f64>().sqrt();
+    (gap <= CROSSING_M).then_some(t)
 }
 
 #[cfg(test)]
@@ -382,15 +421,36 @@ mod tests {
         w.apply(&frame(1, 4, false, &[(1, [0.0, 0.0, 0.0], [-6.4, 0.0, 0.0])]));
         assert!(x_at(&w, 1, 0.0).abs() < 1e-12 && x_at(&w, 1, 4.0).abs() < 1e-12);
         assert!(!w.draw_one(EntityId(1), 2.0).unwrap().steady, "a bounce between the frames");
-        // The blend of the two carried paths (0.1 r and 0.1 (4 - r) metres) is the parabola
-        // 0.2 r - 0.05 r^2: through the bounce point at tick 2, and never faster than twice the
-        // body's own speed, so no frame shows a jump.
+        // The two carried paths (0.1 r and 0.1 (4 - r) metres) meet at the bounce, tick 2: drawn
+        // on each on its side, at the body's own speed, so no frame shows a jump.
         assert!((x_at(&w, 1, 2.0) - 0.2).abs() < 1e-8, "{}", x_at(&w, 1, 2.0)); // 6.4 as f32
         let mut last = x_at(&w, 1, 0.0);
         for k in 1..=40 {
             let x = x_at(&w, 1, f64::from(k) * 0.1);
             assert!((x - last).abs() <= 2.0 * 0.1 * 6.4 / 64.0 + 1e-9, "jump at {k}: {last} -> {x}");
             last = x;
+        }
+    }
+
+    /// A bounce a quarter of the way between two frames is drawn where the server had the body
+    /// at every tick (the corner, not a curve cutting it); a push that leaves the carried paths
+    /// apart is drawn on their blend, continuous.
+    #[test]
+    fn a_bounce_is_drawn_on_the_server_path_and_a_push_blended() {
+        let mut w = RemoteWorld::new(RemoteConfig::new(HZ));
+        // At 6.4 m/s (0.1 m a tick) from x = 0, bounced at tick 1 (x = 0.1): at tick 4, x = -0.2.
+        w.apply(&frame(0, 0, true, &[(1, [0.0, 0.0, 0.0], [6.4, 0.0, 0.0]), (2, [0.0, 5.0, 0.0], [6.4, 0.0, 0.0])]));
+        // Body 2 was pushed sideways, its path offset by 1 m: no meeting.
+        w.apply(&frame(1, 4, false, &[(1, [-0.2, 0.0, 0.0], [-6.4, 0.0, 0.0]), (2, [0.4, 6.0, 0.0], [6.4, 6.4, 0.0])]));
+        for (r, server) in [(0.5, 0.05), (1.0, 0.1), (2.0, 0.0), (3.0, -0.1), (3.5, -0.15)] {
+            assert!((x_at(&w, 1, r) - server).abs() < 1e-6, "tick {r}: {} against {server}", x_at(&w, 1, r));
+        }
+        let y = |r: f64| w.draw_one(EntityId(2), r).unwrap().position[1];
+        let mut last = y(0.0);
+        for k in 1..=40 {
+            let now = y(f64::from(k) * 0.1);
+            assert!((now - last).abs() < 0.05, "a continuous blend: {last} -> {now} at {k}");
+            last = now;
         }
     }
 
