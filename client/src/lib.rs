@@ -24,7 +24,7 @@
 //!
 //! ```no_run
 //! use impact_client::transport::{ConnectOptions, Connection};
-//! use impact_client::{Session, SessionConfig, Status};
+//! use impact_client::{Outcome, Session, SessionConfig, Status};
 //! use impact_protocol::{Action, ClientId, WorldId};
 //! use std::time::Instant;
 //!
@@ -41,6 +41,11 @@
 //!     }
 //!     game.draw_remote(now, &mut drawn); // the remote world at render time: draw it
 //!     for ray in game.take_ray_results() { /* hits */ }
+//!     for answer in game.take_answers() { // each input accepted, or refused and why
+//!         if let Outcome::Rejected(why) = answer.outcome {
+//!             eprintln!("input {} refused: {why:?}", answer.seq);
+//!         }
+//!     }
 //!     let _confirmed_ok = game.events().matched; // the event view
 //!     # break;
 //! }
