@@ -95,8 +95,8 @@ pub struct LoadConfig {
     /// Game clients among them (spread evenly over the ids): they read their state streams,
     /// predict their avatars and draw (see the module docs). 0: none.
     pub predict: u32,
-    /// The scene the server runs, for the game clients' prediction (needed when `predict > 0`).
-    pub scene: Option<impact_core::scene::Scene>,
+    /// The rules the game clients predict with (`None`: the server's, asked with `query/scene`).
+    pub scene: Option<impact_core::scene::SceneRules>,
 }
 
 /// Faults injected into a load run: the fault simulation of `tests/tests/faults.rs` (in the
@@ -475,7 +475,7 @@ fn is_game(k: usize, clients: u32, predict: u32) -> bool {
     (k as u64 * u64::from(predict)) % u64::from(clients.max(1)) < u64::from(predict)
 }
 
-/// The clients, each a session (a game client's predicting from `cfg.scene`).
+/// The clients, each a session (a game client predicts once [`predict`] gave it the rules).
 fn clients(cfg: &LoadConfig, start: Instant) -> anyhow::Result<Vec<Client>> {
     let mut out = Vec::with_capacity(cfg.clients as usize);
     for k in 0..cfg.clients as usize {
@@ -485,12 +485,8 @@ fn clients(cfg: &LoadConfig, start: Instant) -> anyhow::Result<Vec<Client>> {
             b => b,
         };
         let game = is_game(k, cfg.clients, cfg.predict);
-        let mut session = Session::new(SessionConfig { ahead: cfg.timing == Timing::Ahead, ..SessionConfig::new(id) });
-        if game {
-            let scene =
-                cfg.scene.as_ref().ok_or_else(|| anyhow::anyhow!("predicting needs the scene the server runs"))?;
-            session.predict_with(Predictor::new(scene, id, PredictConfig::default())?);
-        }
+        let session =
+            Session::new(SessionConfig { ahead: cfg.timing == Timing::Ahead, predict: None, ..SessionConfig::new(id) });
         out.push(Client {
             id,
             behaviour,
@@ -511,10 +507,30 @@ fn clients(cfg: &LoadConfig, start: Instant) -> anyhow::Result<Vec<Client>> {
     Ok(out)
 }
 
+/// Gives the game clients a predictor: with `cfg.scene`, or the server's own rules (asked once,
+/// as a game's transport asks for each).
+fn predict(cfg: &LoadConfig, zs: &zenoh::Session, clients: &mut [Client]) -> anyhow::Result<()> {
+    if !clients.iter().any(|c| c.game) {
+        return Ok(());
+    }
+    let rules = match &cfg.scene {
+        Some(r) => r.clone(),
+        None => {
+            let d = impact_client::transport::query_scene(zs, &cfg.world, Duration::from_secs(10))?;
+            impact_core::scene::SceneRules::from_description(&d)?
+        }
+    };
+    for c in clients.iter_mut().filter(|c| c.game) {
+        c.session.predict_with(Predictor::new(&rules, c.id, PredictConfig::default())?);
+    }
+    Ok(())
+}
+
 /// Runs the load and returns its report.
 pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
-    let clients = clients(cfg, Instant::now())?;
+    let mut clients = clients(cfg, Instant::now())?;
     let mut wiring = Wiring::connect(cfg, &clients)?;
+    predict(cfg, &wiring.sessions[0], &mut clients)?;
     wiring.declare_presence(cfg, &clients)?;
     let mut run = Run::new(cfg, clients, wiring.sessions.len())?;
     // State streams are counted over the load alone.

@@ -45,8 +45,8 @@ struct Args {
     /// Password, with --user.
     #[arg(long, requires = "user")]
     password: Option<String>,
-    /// The scene file the server runs, for predicting the avatar (default: the bundled scene of
-    /// the world's name, scenes/{world}.toml).
+    /// Predict the avatar with this scene file instead of the rules and static world the server
+    /// sends (`query/scene`); its hash must match the server's.
     #[arg(long)]
     scene: Option<std::path::PathBuf>,
     /// Do not predict the avatar.
@@ -132,16 +132,24 @@ impl Check {
     }
 }
 
-/// Pumps until the session plays (at most 10 s), then says how it joined.
+/// Pumps until the session plays and, when it predicts, has the scene to predict with (at most
+/// 10 s), then says how it joined.
 fn join(conn: &Connection, game: &mut Session, client: ClientId) -> Result<(), Box<dyn std::error::Error>> {
     let frame = Duration::from_secs_f64(1.0 / 60.0);
     let joined_by = Instant::now() + Duration::from_secs(10);
-    while game.status() != Status::Playing {
+    let predicting = game.config().predict.is_some();
+    let ready = |g: &Session| {
+        g.status() == Status::Playing && (!predicting || g.predictor().is_some() || g.prediction_problem().is_some())
+    };
+    while !ready(game) {
         conn.pump(game, Instant::now())?;
         if Instant::now() > joined_by {
-            return Err(
-                format!("no welcome within 10 s (status {:?}): is the scene spawning avatars?", game.status()).into()
-            );
+            return Err(format!(
+                "not ready within 10 s (status {:?}, scene {}): is the scene spawning avatars?",
+                game.status(),
+                if game.predictor().is_some() { "in" } else { "not in" }
+            )
+            .into());
         }
         std::thread::sleep(frame);
     }
@@ -167,12 +175,12 @@ fn play(a: &Args) -> Result<(), Box<dyn std::error::Error>> {
     let mut opts = ConnectOptions::new(a.connect.clone(), world.clone(), client);
     opts.mode = if a.router { Mode::Client } else { Mode::Peer };
     opts.credentials = a.user.clone().zip(a.password.clone()).map(|(user, password)| Credentials { user, password });
+    opts.scene = !a.no_predict && a.scene.is_none();
     let conn = Connection::open(&opts)?;
-    let mut game = Session::new(SessionConfig::new(client));
-    if !a.no_predict {
-        let path = a.scene.clone().unwrap_or_else(|| Scene::bundled_path(&a.world));
-        let scene = Scene::load(&path)?;
-        game.predict_with(Predictor::new(&scene, client, PredictConfig::default())?);
+    let predict = (!a.no_predict).then(PredictConfig::default);
+    let mut game = Session::new(SessionConfig { predict: predict.clone(), ..SessionConfig::new(client) });
+    if let (Some(path), Some(cfg)) = (&a.scene, predict) {
+        game.predict_with(Predictor::new(&Scene::load(path)?.rules(), client, cfg)?);
     }
 
     join(&conn, &mut game, client)?;

@@ -1,4 +1,4 @@
-//! impact's client library for games (issue 27, in progress): the client's logic as plain state
+//! impact's client library for games: the client's logic as plain state
 //! machines, fed with the messages a transport received and the local clock, giving the game
 //! plain data each frame. Nothing here does I/O, spawns a thread or reads a clock: a Zenoh
 //! transport, a WebSocket one or another language's port drives the same model.
@@ -39,6 +39,7 @@
 //!     if let (Status::Playing, Some(avatar)) = (game.status(), game.avatar()) {
 //!         game.input(vec![Action::SetVelocity { entity: avatar, velocity: [2.0, 0.0, 0.0] }], now)?;
 //!     }
+//!     let _me_at = game.draw_avatar(now); // the own avatar, predicted
 //!     game.draw_remote(now, &mut drawn); // the remote world at render time: draw it
 //!     for ray in game.take_ray_results() { /* hits */ }
 //!     for answer in game.take_answers() { // each input accepted, or refused and why
@@ -52,8 +53,10 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 //!
-//! Still to come (issue 27): the static world as resolved values from the server (a client
-//! loads the scene file itself for now, checked by hash).
+//! The transport asks the server for its rules and static world (`query/scene`) as it
+//! connects; the session predicts the own avatar with them once they come
+//! ([`Session::prediction_problem`] says why it does not). A game that ships its levels may give
+//! its own predictor instead ([`Session::predict_with`]).
 
 #![warn(missing_docs)]
 

@@ -1,9 +1,10 @@
 //! Prediction of the player's own avatar with the same deterministic core the server runs.
 //!
-//! The predictor holds a world of the scene's static geometry and terrain (built from the game's
-//! own copy of the scene, checked against the server's by [`Predictor::scene_hash`]) and one
-//! dynamic body: the avatar. Each input is applied at once at the tick it is stamped with, so
-//! the player sees its effect a frame later instead of a round trip later. Twenty times a second
+//! The predictor holds a world of the scene's static geometry and terrain (as the server
+//! describes it, `query/scene`, or from the game's own copy of the scene file, checked against
+//! the server's by [`Predictor::scene_hash`]) and one dynamic body: the avatar. Each input is
+//! applied at once at the tick it is stamped with, so the player sees its effect a frame later
+//! instead of a round trip later. Twenty times a second
 //! the client's state stream brings the avatar's authoritative state at a tick
 //! ([`AvatarState`]: exact f64 position and velocity, sleep state, contacts); the predictor
 //! compares it with what it predicted for that tick. Equal to the bit (the usual case: the core
@@ -18,9 +19,11 @@
 
 use glam::{DQuat, DVec3};
 use impact_core::geometry::Shape;
+#[cfg(doc)]
 use impact_core::scene::Scene;
+use impact_core::scene::{SceneError, SceneRules};
 use impact_core::sim::world::{ClassId, NewBody, Touch};
-use impact_core::sim::{Plan, Stepper, TickInput, TickOutput, World};
+use impact_core::sim::{Stepper, TickInput, TickOutput, World};
 use impact_protocol::{Action, AvatarState, ClientId, EntityId, Tick};
 use std::collections::{BTreeMap, VecDeque};
 
@@ -60,6 +63,10 @@ impl Default for PredictConfig {
 /// Why a predictor could not be made.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum PredictError {
+    /// The server's scene (`query/scene`) did not come: why.
+    NoScene(String),
+    /// The server's scene came but did not rebuild (a value out of range, another hash).
+    Described(SceneError),
     /// The scene spawns no avatars: nothing to predict.
     NoAvatars,
     /// The server runs another scene (or other settings) than the one the client loaded.
@@ -74,6 +81,8 @@ pub enum PredictError {
 impl std::fmt::Display for PredictError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
+            PredictError::NoScene(why) => write!(f, "the server's scene did not come ({why}): nothing to predict with"),
+            PredictError::Described(e) => write!(f, "the server's scene did not rebuild: {e}"),
             PredictError::NoAvatars => {
                 write!(f, "the scene spawns no avatars ([spawn] avatar_class): nothing to predict")
             }
@@ -160,24 +169,23 @@ pub struct Predictor {
 }
 
 impl Predictor {
-    /// A predictor for `client` on `scene` (the game's own copy of the server's scene).
-    pub fn new(scene: &Scene, client: ClientId, cfg: PredictConfig) -> Result<Predictor, PredictError> {
-        let rule = scene.avatar.as_ref().ok_or(PredictError::NoAvatars)?;
-        // The server's plan is made from the whole scene; the same plan steps the same way.
-        let plan = Plan::for_world(&scene.world);
-        let mut world = scene.world.clone();
+    /// A predictor for `client` on `rules`: the server's (from `query/scene`,
+    /// [`SceneRules::from_description`]) or the game's own copy of the scene ([`Scene::rules`]).
+    pub fn new(rules: &SceneRules, client: ClientId, cfg: PredictConfig) -> Result<Predictor, PredictError> {
+        let rule = rules.avatar.as_ref().ok_or(PredictError::NoAvatars)?;
+        let mut world = rules.world.clone();
         world.bodies.remove_flagged(&vec![true; world.bodies.len()]);
         world.touching.clear();
         let density = world.config.classes.props[rule.class.0 as usize].density_kg_m3;
         Ok(Predictor {
             cfg,
             client,
-            scene_hash: scene.world.scene_hash(),
+            scene_hash: rules.world.scene_hash(),
             inv_mass: 1.0 / (density * rule.shape.volume()),
             class: rule.class,
             shape: rule.shape.clone(),
             world,
-            stepper: Stepper::new(plan, false),
+            stepper: Stepper::new(rules.plan.clone(), false),
             out: TickOutput::default(),
             avatar: None,
             inputs: BTreeMap::new(),
@@ -402,7 +410,8 @@ impl Predictor {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use impact_core::sim::SystemAction;
+    use impact_core::scene::Scene;
+    use impact_core::sim::{Plan, SystemAction};
 
     /// A ground, a wall, gravity, and capsule avatars: resting contacts, sliding along a wall.
     const SCENE: &str = r#"
@@ -502,12 +511,28 @@ mod tests {
 
     /// The avatar lands, rests on the ground (its contacts carried in the state), walks into a
     /// wall and slides along it: the predictor, fed the inputs ahead of the server and its
-    /// state every third tick, predicted every one of those ticks to the bit.
+    /// state every third tick, predicted every one of those ticks to the bit. Built from the
+    /// scene file, or from the scene as the server describes it over the wire (a tilted wall:
+    /// its quaternion, not its degrees).
     #[test]
     fn the_prediction_equals_the_server_to_the_bit() {
         let scene = Scene::parse(SCENE, "<yard>").unwrap();
-        let mut server = Server::new(&scene);
-        let mut p = Predictor::new(&scene, ME, PredictConfig::default()).unwrap();
+        let msg = impact_protocol::ServerMessage::Scene(Box::new(scene.describe()));
+        let bytes = impact_protocol::encode(&msg, impact_protocol::Encoding::MsgPack).unwrap();
+        let Ok(impact_protocol::ServerMessage::Scene(described)) =
+            impact_protocol::decode(&bytes, impact_protocol::Encoding::MsgPack, usize::MAX)
+        else {
+            panic!("the description did not decode")
+        };
+        let from_wire = SceneRules::from_description(&described).unwrap();
+        for rules in [scene.rules(), from_wire] {
+            predicts_exactly(&scene, &rules);
+        }
+    }
+
+    fn predicts_exactly(scene: &Scene, rules: &SceneRules) {
+        let mut server = Server::new(scene);
+        let mut p = Predictor::new(rules, ME, PredictConfig::default()).unwrap();
         assert_eq!(p.check(scene.world.scene_hash()), Ok(()));
         assert_eq!(p.authoritative(server.world.tick, &server.state()), Reconciled::Taken);
         let (mut exact, mut touching) = (0, 0);
@@ -536,7 +561,7 @@ mod tests {
     fn answers_move_or_forget_predicted_inputs() {
         let scene = Scene::parse(SCENE, "<yard>").unwrap();
         let mut server = Server::new(&scene);
-        let mut p = Predictor::new(&scene, ME, PredictConfig::default()).unwrap();
+        let mut p = Predictor::new(&scene.rules(), ME, PredictConfig::default()).unwrap();
         p.authoritative(server.world.tick, &server.state());
         let t0 = server.world.tick.0;
         let (refused, moved) = (walk(server.avatar, 10), walk(server.avatar, 30));
@@ -563,7 +588,7 @@ mod tests {
     fn a_correction_is_replayed_and_eased_and_a_teleport_snaps() {
         let scene = Scene::parse(SCENE, "<yard>").unwrap();
         let mut server = Server::new(&scene);
-        let mut p = Predictor::new(&scene, ME, PredictConfig::default()).unwrap();
+        let mut p = Predictor::new(&scene.rules(), ME, PredictConfig::default()).unwrap();
         p.authoritative(server.world.tick, &server.state());
         for _ in 0..64 {
             server.step(&[]);
@@ -620,7 +645,7 @@ mod tests {
     fn another_scene_is_refused() {
         let scene = Scene::parse(SCENE, "<yard>").unwrap();
         let faster = Scene::parse(&SCENE.replace("tick_hz = 64", "tick_hz = 128"), "<yard>").unwrap();
-        let p = Predictor::new(&scene, ME, PredictConfig::default()).unwrap();
+        let p = Predictor::new(&scene.rules(), ME, PredictConfig::default()).unwrap();
         let e = p.check(faster.world.scene_hash()).unwrap_err();
         assert!(e.to_string().contains("--tick-hz"), "{e}");
         assert_eq!(p.check(0), Ok(()), "a server that sends no hash");

@@ -28,12 +28,13 @@
 use crate::clock::Clock;
 use crate::events::EventView;
 use crate::inputs::{Outbox, Sent};
-use crate::predict::{PredictError, Predictor, Reconciled};
+use crate::predict::{PredictConfig, PredictError, Predictor, Reconciled};
 use crate::remote::{DrawnBody, RemoteConfig, RemoteWorld};
+use impact_core::scene::SceneRules;
 use impact_protocol::limits::{MAX_ACTIONS_PER_INPUT, MAX_INPUTS_PER_MESSAGE};
 use impact_protocol::{
     Action, ClientId, ClientInput, ClientMessage, EntityId, FullFrameRequest, InputBatch, RayResult, RejectReason,
-    ServerMessage, Tick, TimePing, Welcome,
+    SceneDescription, ServerMessage, Tick, TimePing, Welcome,
 };
 use std::collections::{BTreeMap, VecDeque};
 use std::time::{Duration, Instant};
@@ -115,12 +116,22 @@ pub struct SessionConfig {
     pub redundancy: usize,
     /// How far behind the server's present remote bodies are drawn, seconds (default 0.1).
     pub interpolation_delay_s: f64,
+    /// How the own avatar is predicted once the server's scene arrives (`query/scene`, which the
+    /// transport asks): `None` predicts nothing until [`Session::predict_with`] (default: the
+    /// [`PredictConfig`] defaults).
+    pub predict: Option<PredictConfig>,
 }
 
 impl SessionConfig {
     /// The defaults for client `client`.
     pub fn new(client: ClientId) -> SessionConfig {
-        SessionConfig { client, ahead: true, redundancy: MAX_INPUTS_PER_MESSAGE - 1, interpolation_delay_s: 0.1 }
+        SessionConfig {
+            client,
+            ahead: true,
+            redundancy: MAX_INPUTS_PER_MESSAGE - 1,
+            interpolation_delay_s: 0.1,
+            predict: Some(PredictConfig::default()),
+        }
     }
 }
 
@@ -314,14 +325,44 @@ impl Session {
         }
     }
 
-    /// Predicts the own avatar with `p` from now on (see [`crate::predict`]); the welcome's
-    /// scene hash is checked against it ([`Session::prediction_problem`] says why prediction
-    /// stopped).
+    /// Predicts the own avatar with `p` from now on (see [`crate::predict`]), instead of a
+    /// predictor made from the server's scene; the welcome's scene hash is checked against it
+    /// ([`Session::prediction_problem`] says why prediction stopped).
     pub fn predict_with(&mut self, p: Predictor) {
+        if let Some(Err(e)) = self.welcome.as_ref().map(|w| p.check(w.scene_hash)) {
+            self.prediction_problem = Some(e);
+            return;
+        }
         self.predictor = Some(p);
+        self.prediction_problem = None;
     }
 
-    /// Why prediction is off after [`Session::predict_with`] (the server runs another scene).
+    /// The server could not be asked for its scene (`reason`): nothing to predict with unless
+    /// the game gives a predictor ([`Session::prediction_problem`] then says so).
+    pub fn scene_unavailable(&mut self, reason: String) {
+        if self.predictor.is_none() {
+            self.prediction_problem = Some(PredictError::NoScene(reason));
+        }
+    }
+
+    /// The server's scene arrived: unless the game gave a predictor or
+    /// [`SessionConfig::predict`] is off, the own avatar is predicted with it from now on.
+    fn scene(&mut self, d: &SceneDescription) {
+        let Some(cfg) = self.cfg.predict.clone() else { return };
+        if self.predictor.is_some() {
+            return;
+        }
+        let made = SceneRules::from_description(d)
+            .map_err(PredictError::Described)
+            .and_then(|rules| Predictor::new(&rules, self.cfg.client, cfg));
+        match made {
+            Ok(p) => self.predict_with(p),
+            Err(e) => self.prediction_problem = Some(e),
+        }
+    }
+
+    /// Why the own avatar is not predicted: the server runs another scene than the predictor
+    /// given, its scene did not arrive or did not rebuild, or it spawns no avatars.
     pub fn prediction_problem(&self) -> Option<&PredictError> {
         self.prediction_problem.as_ref()
     }
@@ -622,6 +663,7 @@ impl Session {
                 }
             }
             ServerMessage::Stats(s) => self.observe(s.tick, now),
+            ServerMessage::Scene(d) => self.scene(&d),
             _ => self.stats.skipped += 1,
         }
     }
@@ -972,6 +1014,33 @@ mod tests {
     }
 
     /// Nothing for another client changes the session; an unknown kind is skipped and counted.
+    /// The server's scene makes the predictor; one that does not rebuild to its hash, or a
+    /// scene query that got nothing, says why instead.
+    #[test]
+    fn the_servers_scene_makes_the_predictor_or_says_why_not() {
+        let t0 = Instant::now();
+        let scene = impact_core::scene::Scene::load(&impact_core::scene::Scene::bundled_path("arena")).unwrap();
+        let d = scene.describe();
+        let mut s = Session::new(SessionConfig::new(ClientId(7)));
+        s.receive(ServerMessage::Scene(Box::new(d.clone())), t0);
+        assert!(s.predictor().is_some() && s.prediction_problem().is_none());
+
+        let mut bent = d.clone();
+        bent.statics[0].orientation[3] -= 1e-12;
+        let mut s = Session::new(SessionConfig::new(ClientId(7)));
+        s.receive(ServerMessage::Scene(Box::new(bent)), t0);
+        assert!(s.predictor().is_none());
+        assert!(matches!(s.prediction_problem(), Some(PredictError::Described(e)) if e.entry == "scene_hash"));
+
+        let mut s = Session::new(SessionConfig::new(ClientId(7)));
+        s.scene_unavailable("no server answered".into());
+        assert!(s.prediction_problem().unwrap().to_string().contains("no server answered"));
+        // Off in the config: the scene is not used.
+        let mut s = Session::new(SessionConfig { predict: None, ..SessionConfig::new(ClientId(7)) });
+        s.receive(ServerMessage::Scene(Box::new(d)), t0);
+        assert!(s.predictor().is_none() && s.prediction_problem().is_none());
+    }
+
     #[test]
     fn messages_for_others_are_skipped() {
         let t0 = Instant::now();

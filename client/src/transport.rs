@@ -6,7 +6,9 @@
 //! [`Connection::open`] opens a Zenoh session, finds the world's server and checks that it
 //! speaks this protocol version (a clear error if not), subscribes to the client's keys, and
 //! declares the client's presence, which makes the server spawn its avatar and send its welcome.
-//! Each frame, [`Connection::pump`] hands the session what arrived and sends what it gives.
+//! It asks the server for its rules and static world (`query/scene`): the session predicts the
+//! own avatar with them once they come. Each frame, [`Connection::pump`] hands the session what
+//! arrived and sends what it gives.
 //!
 //! Received messages are decoded in Zenoh's callback and queued for the next pump, at most
 //! [`INBOX_CAPACITY`] (past it they are dropped and counted in [`Connection::dropped`]); a
@@ -18,9 +20,9 @@
 use crate::session::Session;
 use ::zenoh::Wait;
 use impact_protocol::limits::MAX_SERVER_MESSAGE_BYTES;
-use impact_protocol::{keys, ClientId, ClientMessage, Encoding, ServerMessage, WorldId};
+use impact_protocol::{keys, ClientId, ClientMessage, Encoding, SceneDescription, ServerMessage, WorldId};
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -171,6 +173,9 @@ pub struct ConnectOptions {
     pub encoding: Encoding,
     /// How long to look for the world's server before giving up (default 10 s).
     pub find_server: Duration,
+    /// Ask the server for its rules and static world (`query/scene`), so the session predicts
+    /// the own avatar with them ([`crate::SessionConfig::predict`]; default on).
+    pub scene: bool,
 }
 
 impl ConnectOptions {
@@ -187,15 +192,83 @@ impl ConnectOptions {
             state: true,
             encoding: Encoding::MsgPack,
             find_server: Duration::from_secs(10),
+            scene: true,
         }
     }
 }
 
-/// What the callbacks queue: a message, or one that did not decode.
+/// What the callbacks queue: a message, one that did not decode, or why the scene query got no
+/// scene.
 #[derive(Debug)]
 enum Inbound {
     Msg(ServerMessage, Instant),
     Malformed,
+    NoScene(String),
+}
+
+/// A reply to `query/scene`: the scene, why there is none, or a payload that is not one.
+fn scene_reply(reply: &::zenoh::query::Reply) -> Inbound {
+    match reply.result() {
+        Ok(sample) => match decode_server(sample) {
+            Ok(m @ ServerMessage::Scene(_)) => Inbound::Msg(m, Instant::now()),
+            Ok(ServerMessage::QueryError(e)) => Inbound::NoScene(e.detail),
+            Ok(_) | Err(_) => Inbound::Malformed,
+        },
+        Err(e) => Inbound::NoScene(format!("query/scene: {}", e.payload().try_to_string().unwrap_or_default())),
+    }
+}
+
+/// Asks the server of `world` for its rules and static world (`query/scene`) and waits for the
+/// answer, at most `timeout`: for a tool or a load generator that drives sessions itself
+/// ([`Connection`] asks on its own).
+pub fn query_scene(
+    session: &::zenoh::Session,
+    world: &WorldId,
+    timeout: Duration,
+) -> Result<SceneDescription, TransportError> {
+    let key = keys::QUERY_SCENE.key(world, None);
+    let replies = session
+        .get(&key)
+        .timeout(timeout)
+        .wait()
+        .map_err(|e| TransportError::Zenoh(format!("asking for the scene: {e}")))?;
+    let why = match replies.recv() {
+        Err(_) => format!("no server answered {key} within {:.1} s", timeout.as_secs_f64()),
+        Ok(reply) => match scene_reply(&reply) {
+            Inbound::Msg(ServerMessage::Scene(d), _) => return Ok(*d),
+            Inbound::NoScene(why) => why,
+            _ => format!("{key} answered something that is not a scene"),
+        },
+    };
+    Err(TransportError::Zenoh(why))
+}
+
+/// Asks the server for its scene; the answer (or why there is none) is queued for the next pump.
+fn ask_scene(session: &::zenoh::Session, world: &WorldId, tx: SyncSender<Inbound>) -> Result<(), TransportError> {
+    /// Says why when the query ends without a scene (Zenoh drops the callback then).
+    struct Asked {
+        tx: SyncSender<Inbound>,
+        answered: AtomicBool,
+    }
+    impl Drop for Asked {
+        fn drop(&mut self) {
+            if !self.answered.load(Relaxed) {
+                let _ = self.tx.try_send(Inbound::NoScene("no server answered query/scene within 10 s".into()));
+            }
+        }
+    }
+    let asked = Asked { tx, answered: AtomicBool::new(false) };
+    session
+        .get(keys::QUERY_SCENE.key(world, None))
+        .timeout(Duration::from_secs(10))
+        .callback(move |reply| {
+            let item = scene_reply(&reply);
+            if !asked.answered.swap(true, Relaxed) {
+                let _ = asked.tx.try_send(item);
+            }
+        })
+        .wait()
+        .map_err(|e| TransportError::Zenoh(format!("asking for the scene: {e}")))
 }
 
 /// A client's Zenoh side (see the module docs). Dropping it withdraws the presence.
@@ -284,6 +357,9 @@ impl Connection {
                 .map_err(|e| TransportError::Zenoh(format!("subscribing: {e}")))?;
             subscribers.push(sub);
         }
+        if opts.scene {
+            ask_scene(&session, w, tx.clone())?;
+        }
         // Last, so every subscription is in place when the welcome comes.
         let token = session
             .liveliness()
@@ -308,6 +384,7 @@ impl Connection {
             match item {
                 Inbound::Msg(m, at) => client.receive(m, at),
                 Inbound::Malformed => client.malformed(),
+                Inbound::NoScene(why) => client.scene_unavailable(why),
             }
         }
         while let Some(msg) = client.poll_transmit(now) {

@@ -38,6 +38,9 @@ pub const PRESENCE: KeyPattern = KeyPattern { name: "presence", pattern: "impact
 pub const QUERY_STATE: KeyPattern = KeyPattern { name: "query_state", pattern: "impact/v1/{world}/query/state" };
 /// Queryable: events of a tick range (`?from=T1;to=T2`).
 pub const QUERY_HISTORY: KeyPattern = KeyPattern { name: "query_history", pattern: "impact/v1/{world}/query/history" };
+/// Queryable: the rules and static world as the core runs them
+/// ([`SceneDescription`](crate::SceneDescription)), for a client that predicts.
+pub const QUERY_SCENE: KeyPattern = KeyPattern { name: "query_scene", pattern: "impact/v1/{world}/query/scene" };
 
 /// The input log, one message per confirmed tick ([`LogTick`](crate::LogTick)).
 pub const LOG: KeyPattern = KeyPattern { name: "log", pattern: "impact/v1/{world}/log" };
@@ -56,7 +59,7 @@ pub const CLIENT_STATE: KeyPattern =
     KeyPattern { name: "client_state", pattern: "impact/v1/{world}/client/{client}/state" };
 
 /// Every key impact uses.
-pub const PATTERNS: [KeyPattern; 16] = [
+pub const PATTERNS: [KeyPattern; 17] = [
     INPUT,
     EVENTS,
     CORRECTIONS,
@@ -67,6 +70,7 @@ pub const PATTERNS: [KeyPattern; 16] = [
     PRESENCE,
     QUERY_STATE,
     QUERY_HISTORY,
+    QUERY_SCENE,
     LOG,
     LOG_ADMITTED,
     SERVER,

@@ -6,6 +6,8 @@
 //! - [`message`]: one enum per direction, [`ClientMessage`] and [`ServerMessage`].
 //! - [`action`]: what a client can do ([`Action`]) and where a ray hit ([`RayHit`]).
 //! - [`event`]: the [`CollisionEvent`] the server publishes.
+//! - [`scene`]: [`SceneDescription`], the rules and static world as the core runs them
+//!   (`query/scene`), so a client predicts without the scene file.
 //! - [`shape`]: [`ShapeSpec`], a collision shape as data: scene files, spawns and checkpoints.
 //! - [`state`]: the state streams' frames ([`StateFrame`]) for drawing and interpolation.
 //! - [`keys`]: every Zenoh key expression, built in one place under `impact/v1/{world}`.
@@ -26,6 +28,7 @@ pub mod keys;
 pub mod limits;
 pub mod log;
 pub mod message;
+pub mod scene;
 pub mod shape;
 pub mod state;
 pub mod validate;
@@ -40,5 +43,6 @@ pub use message::{
     InputAck, InputBatch, InputReject, QueryError, RayHit, RayResult, RejectReason, ServerMessage, ServerStats,
     ShapeSpec, TimePing, TimePong, Welcome, WorldSnapshot,
 };
+pub use scene::SceneDescription;
 pub use state::{AvatarState, AvatarTouch, BodyInfo, BodyMotion, BodyShape, StateFrame};
 pub use validate::Validate;

@@ -138,6 +138,8 @@ pub enum ServerMessage {
     State(crate::state::StateFrame),
     /// The answer to a time-sync probe ([`ClientMessage::Ping`]).
     Pong(TimePong),
+    /// The rules and static world (answer to the scene query).
+    Scene(Box<crate::scene::SceneDescription>),
 }
 
 /// The events of one tick.
@@ -329,8 +331,8 @@ pub struct Welcome {
     #[serde(default)]
     pub next_seq: u32,
     /// A hash of what a client needs to predict with the core: the static world and the rules
-    /// (`impact_core::sim::World::scene_hash`). A client that loaded the scene itself compares
-    /// it with its own (0: not sent).
+    /// (`impact_core::sim::World::scene_hash`). A client that built its world from `query/scene`
+    /// or loaded the scene itself compares it with its own (0: not sent).
     #[serde(default)]
     pub scene_hash: u64,
 }

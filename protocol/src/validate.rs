@@ -299,6 +299,10 @@ impl Validate for ServerMessage {
             | ServerMessage::Admitted(_)
             | ServerMessage::Checkpoint(_)
             | ServerMessage::Pong(_) => Ok(()),
+            // Checked where it is rebuilt (`impact_core::scene::describe`): a static floor may
+            // be larger than anything a client may spawn, and the rebuilt world must hash to
+            // `scene_hash`.
+            ServerMessage::Scene(_) => Ok(()),
         }
     }
 }

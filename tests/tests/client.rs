@@ -1,5 +1,6 @@
 //! The client library (`impact-client`) against a real server over Zenoh on loopback: it joins,
-//! predicts its avatar bit for bit where nothing else touched it, has every shot answered once,
+//! predicts its avatar bit for bit where nothing else touched it with the rules and static world
+//! the server sent (`query/scene`), has every shot answered once,
 //! measures its round trip before its first input, stamps inputs on time, carries unanswered
 //! inputs in each message so a lossy uplink loses none (and the server applies each once), and
 //! says clearly when no server, or a server of another protocol version, owns the world.
@@ -7,7 +8,6 @@
 mod common;
 
 use common::*;
-use impact_client::predict::{PredictConfig, Predictor};
 use impact_client::transport::{ConnectOptions, Connection, TransportError};
 use impact_client::{Session, SessionConfig, Status};
 use impact_core::scene::Scene;
@@ -19,10 +19,10 @@ fn options(ep: &str, client: u32) -> ConnectOptions {
     ConnectOptions::new(vec![ep.to_string()], WorldId::new("arena").unwrap(), ClientId(client))
 }
 
-/// Pumps until the session plays (bounded).
+/// Pumps until the session plays and has the server's scene to predict with (bounded).
 fn join(conn: &Connection, game: &mut Session) {
     let by = Instant::now() + Duration::from_secs(10);
-    while game.status() != Status::Playing {
+    while game.status() != Status::Playing || (game.predictor().is_none() && game.prediction_problem().is_none()) {
         assert!(Instant::now() < by, "not playing within 10 s: {:?} {:?}", game.status(), game.stats());
         conn.pump(game, Instant::now()).unwrap();
         std::thread::sleep(Duration::from_millis(5));
@@ -69,11 +69,12 @@ fn play(conn: &Connection, game: &mut Session, seconds: f64, mut copies: impl Fn
 fn a_client_syncs_predicts_plays_on_time_and_loses_no_input_to_a_lossy_uplink() {
     let (server, ep) = server(Scene::load(&Scene::bundled_path("arena")).unwrap(), |_| {});
     let conn = Connection::open(&options(&ep, 1)).expect("connects");
+    // No scene file: the connection asks the server for its rules and static world
+    // (`query/scene`), and the session predicts with them.
     let mut game = Session::new(SessionConfig::new(ClientId(1)));
-    let scene = Scene::load(&Scene::bundled_path("arena")).unwrap();
-    game.predict_with(Predictor::new(&scene, ClientId(1), PredictConfig::default()).unwrap());
     join(&conn, &mut game);
-    assert_eq!(game.prediction_problem(), None, "the server runs the scene the client loaded");
+    assert_eq!(game.prediction_problem(), None, "the server's scene rebuilt to its hash");
+    assert!(game.predictor().is_some());
     let s = game.stats().clone();
     assert!(s.sync_samples >= 3, "the round trip was measured before play: {s:?}");
     assert!(game.clock().lead().is_some_and(|l| l >= 1.0), "a lead before the first ack");

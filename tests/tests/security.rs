@@ -129,6 +129,8 @@ fn a_user_acts_listens_and_appears_only_as_itself() {
     let events = Inbox::new(&mallory, keys::STATS.key(&world, None));
     assert!(events.wait_for(Duration::from_secs(3), |m| matches!(m, ServerMessage::Stats(_)).then_some(())).is_some());
     assert!(matches!(query(&mallory, keys::QUERY_STATE.key(&world, None), ""), Some(ServerMessage::Snapshot(_))));
+    // ...the scene a client predicts with too.
+    assert!(matches!(query(&mallory, keys::QUERY_SCENE.key(&world, None), ""), Some(ServerMessage::Scene(_))));
 
     let summary = server.stop();
     assert_eq!(summary.inputs_accepted, 3, "only alice's three inputs were accepted: {summary}");

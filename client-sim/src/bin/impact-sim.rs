@@ -87,8 +87,8 @@ struct Args {
     /// 1,000 clients on one core). Default 0; with --demo, every client.
     #[arg(long)]
     predict: Option<u32>,
-    /// The scene the server runs, for --predict (default: the bundled scene of the world's
-    /// name, scenes/{world}.toml).
+    /// Predict with this scene file instead of the rules and static world the server sends
+    /// (`query/scene`); its hash must match the server's.
     #[arg(long)]
     scene: Option<PathBuf>,
     /// Seed for behaviour and the network model.
@@ -117,17 +117,14 @@ fn parse_duration(s: &str) -> Result<Duration, String> {
     Ok(Duration::from_secs_f64(secs))
 }
 
-/// How many clients predict, and the scene they predict with.
-fn prediction(a: &Args) -> Result<(u32, Option<impact_core::scene::Scene>)> {
+/// How many clients predict, and the scene file they predict with if one was given.
+fn prediction(a: &Args) -> Result<(u32, Option<impact_core::scene::SceneRules>)> {
     let predict = a.predict.unwrap_or(0).min(a.clients);
-    if predict == 0 {
-        return Ok((0, None));
-    }
-    let path = a.scene.clone().unwrap_or_else(|| impact_core::scene::Scene::bundled_path(&a.world));
-    let scene = impact_core::scene::Scene::load(&path)
+    let Some(path) = a.scene.as_ref().filter(|_| predict > 0) else { return Ok((predict, None)) };
+    let scene = impact_core::scene::Scene::load(path)
         .map_err(anyhow::Error::msg)
-        .with_context(|| format!("--predict needs the scene the server runs (--scene {})", path.display()))?;
-    Ok((predict, Some(scene)))
+        .with_context(|| format!("--scene {}", path.display()))?;
+    Ok((predict, Some(scene.rules())))
 }
 
 fn main() -> Result<()> {

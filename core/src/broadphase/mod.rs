@@ -37,6 +37,13 @@ pub enum BroadphaseKind {
 }
 
 impl BroadphaseKind {
+    /// The kind [`BroadphaseKind::name`] names.
+    pub fn from_name(name: &str) -> Option<BroadphaseKind> {
+        [BroadphaseKind::BruteForce, BroadphaseKind::SweepAndPrune, BroadphaseKind::Grid, BroadphaseKind::Bvh]
+            .into_iter()
+            .find(|k| k.name() == name)
+    }
+
     /// Short name for plans and benchmarks.
     pub fn name(self) -> &'static str {
         match self {

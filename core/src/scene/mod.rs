@@ -1,6 +1,7 @@
 //! Scenes: the TOML format ([`format`](mod@format)), and loading a file into a [`World`] with errors that
 //! name the file, the entry and what is wrong. See SCENES.md.
 
+pub mod describe;
 pub mod format;
 pub mod random;
 pub mod settings;
@@ -19,8 +20,10 @@ use settings::WorldKeys;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+pub use describe::SceneRules;
+
 /// A scene that could not be loaded: which file, which entry, what is wrong.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("{file}: {entry}: {detail}")]
 pub struct SceneError {
     /// The file (or `<inline>`).

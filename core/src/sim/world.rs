@@ -99,6 +99,12 @@ impl Classes {
         self.rules[b.0 as usize * n + a.0 as usize] = rule.swapped();
     }
 
+    /// Sets the rule for the ordered pair `(a, b)` only (a table read whole, both orders given).
+    pub(crate) fn set_one(&mut self, a: ClassId, b: ClassId, rule: Rule) {
+        let n = self.props.len();
+        self.rules[a.0 as usize * n + b.0 as usize] = rule;
+    }
+
     /// The rule when a body of class `a` meets one of class `b`.
     #[inline]
     pub fn rule(&self, a: ClassId, b: ClassId) -> Rule {
@@ -510,9 +516,10 @@ impl World {
 
     /// A deterministic 64-bit hash of what a client needs beside its own avatar to step it as the
     /// server does: the rules (every `SimConfig` value) and the static world (ids, classes,
-    /// exact positions, orientations and bounds of the static bodies, and the terrain). A client
-    /// that built its world from its own copy of the scene compares it with the server's
-    /// (`Welcome::scene_hash`): equal, its prediction runs on the same world.
+    /// shapes, exact positions, orientations and bounds of the static bodies, and the terrain).
+    /// A client that built its world from the server's description (`query/scene`) or its own
+    /// copy of the scene compares it with the server's (`Welcome::scene_hash`): equal, its
+    /// prediction runs on the same world.
     pub fn scene_hash(&self) -> u64 {
         let mut h = StateHasher::new();
         let text = |h: &mut StateHasher, s: &str| s.bytes().for_each(|b| h.u64(u64::from(b)));
@@ -530,6 +537,7 @@ impl World {
             for c in st.rot[i].to_array() {
                 h.f64(c);
             }
+            text(&mut h, &format!("{:?}", st.shape[i].to_spec()));
         }
         if let Some(t) = &st.terrain {
             text(&mut h, &format!("{:?}", t));

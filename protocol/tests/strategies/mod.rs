@@ -144,6 +144,7 @@ pub fn server_message() -> impl Strategy<Value = ServerMessage> {
         })),
         stats(),
         state_frame(),
+        scene(),
         "[a-z ]{0,40}".prop_map(|detail| ServerMessage::QueryError(QueryError { detail })),
     ]
 }
@@ -328,5 +329,91 @@ fn state_frame() -> impl Strategy<Value = ServerMessage> {
                         .collect(),
                 }),
             })
+        })
+}
+
+fn scene() -> impl Strategy<Value = ServerMessage> {
+    use impact_protocol::scene::*;
+    (
+        any::<u64>(),
+        (1..64u32, dim(), vec3()),
+        vec(("[a-z]{1,10}", any::<bool>(), dim()), 1..4),
+        vec((0..6u8, dim()), 16),
+        vec((entity(), shape(), vec3(), unit3()), 0..4),
+        option::of((entity(), 2..4u32, vec(-10.0..10.0f64, 16))),
+        option::of((shape(), small3())),
+    )
+        .prop_map(|(hash, (tick_hz, dt, gravity), classes, rules, statics, terrain, avatar)| {
+            let n = classes.len();
+            let class = |k: u16| k % n as u16;
+            let pair = |(kind, r): (u8, f64)| match kind {
+                0 => PairRule::Ignore,
+                1 => PairRule::Trigger,
+                2 => PairRule::Bounce { restitution: r.min(1.0) },
+                3 => PairRule::Slide,
+                4 => PairRule::Stop,
+                _ => PairRule::Destroy { first: r > 0.5, second: true, restitution: (r < 1.0).then_some(r) },
+            };
+            ServerMessage::Scene(Box::new(SceneDescription {
+                world: WorldId::new("arena").unwrap(),
+                scene_hash: hash,
+                rules: WorldRules {
+                    tick_hz,
+                    dt,
+                    gravity,
+                    contact_slop_m: 0.003,
+                    bounce_threshold_mps: dt,
+                    max_resolutions_per_tick: tick_hz * 100,
+                    friction: 0.5,
+                    sleep_speed_mps: 0.05,
+                    sleep_after_ticks: tick_hz / 2,
+                    max_bodies: 100_000,
+                    window_ticks: 16,
+                    input_lead_ticks: 8,
+                    max_rewind_ticks: 16,
+                    projectile_class: (n > 1).then_some(1),
+                    toi: ToiRules {
+                        tolerance: 1.0 / 32768.0,
+                        tolerance_m: 1e-4,
+                        max_iterations: 32,
+                        max_samples: 4096,
+                    },
+                },
+                pair_rules: rules.into_iter().cycle().take(n * n).map(pair).collect(),
+                classes: classes
+                    .into_iter()
+                    .map(|(name, is_static, speed)| ClassRules {
+                        name,
+                        is_static,
+                        max_speed_mps: speed,
+                        gravity: !is_static,
+                        density_kg_m3: 1000.0,
+                        can_sleep: true,
+                    })
+                    .collect(),
+                statics: statics
+                    .into_iter()
+                    .enumerate()
+                    .map(|(k, (entity, shape, position, axis))| StaticBody {
+                        entity,
+                        class: class(k as u16),
+                        shape,
+                        position,
+                        orientation: [axis[0] * 0.6, axis[1] * 0.6, axis[2] * 0.6, 0.8],
+                    })
+                    .collect(),
+                terrain: terrain.map(|(entity, columns, heights)| TerrainSpec {
+                    entity,
+                    class: class(0),
+                    origin: [-8.0, 0.0, -8.0],
+                    cell_x_m: 1.0,
+                    cell_z_m: 2.0,
+                    columns,
+                    rows: heights.len() as u32 / columns,
+                    heights,
+                }),
+                avatar: avatar.map(|(shape, at)| AvatarSpec { class: class(0), shape, region_min: at, region_max: at }),
+                plan: PlanSpec { ccd_sampling: tick_hz > 32, broadphase: "grid".into() },
+            }))
         })
 }

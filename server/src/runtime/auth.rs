@@ -9,8 +9,8 @@
 //! - declare its own presence token, on `impact/v1/*/presence/{client}`;
 //! - subscribe to its own `impact/v1/*/client/{client}/**` and receive what is published there;
 //! - subscribe to and receive the public streams ([`PUBLIC`]);
-//! - query `impact/v1/*/query/state` and `.../query/history` and receive the replies (the
-//!   checkpoint query, every client's replay window, is for `[[server]]` peers).
+//! - query `impact/v1/*/query/state`, `.../query/history` and `.../query/scene` and receive the
+//!   replies (the checkpoint query, every client's replay window, is for `[[server]]` peers).
 //!
 //! The world segment is `*`: a user is the same client in every world of the deployment, and one
 //! set of rules serves a server with many worlds and a router in front of many servers.
@@ -139,8 +139,9 @@ impl Users {
         let client_tree = |c: u32| format!("impact/{}/*/client/{c}/**", keys::VERSION);
         let rule = |id: String, keys: Vec<String>, messages: &[&str], flow: &str| json!({"id": id, "key_exprs": keys, "messages": messages, "flows": [flow], "permission": "allow"});
         let public: Vec<String> = PUBLIC.iter().map(|p| all(*p)).collect();
-        // The state and history queries; the checkpoint (every seq window) is for servers.
-        let queries: Vec<String> = [keys::QUERY_STATE, keys::QUERY_HISTORY].iter().map(|p| all(*p)).collect();
+        // The state, history and scene queries; the checkpoint (every seq window) is for servers.
+        let queries: Vec<String> =
+            [keys::QUERY_STATE, keys::QUERY_HISTORY, keys::QUERY_SCENE].iter().map(|p| all(*p)).collect();
         let everything = vec![format!("impact/{}/**", keys::VERSION)];
         let every_message = [
             "put",

@@ -1,6 +1,6 @@
-//! Answers to the queries a server declares: the state at a tick, the events of a range, and the
-//! checkpoint a standby starts from. Answered by the tick thread from its history, replied by the
-//! egress thread.
+//! Answers to the queries a server declares: the state at a tick, the events of a range, the
+//! rules and static world a client predicts with, and the checkpoint a standby starts from.
+//! Answered by the tick thread from its history, replied by the egress thread.
 
 use super::{Out, TickLoop};
 use impact_protocol::{encode, EventHistory, QueryError, ServerMessage, Tick};
@@ -33,6 +33,8 @@ impl TickLoop {
                 }
                 Err(e) => ServerMessage::QueryError(QueryError { detail: e }),
             }
+        } else if key.ends_with("/query/scene") {
+            ServerMessage::Scene(Box::new(self.described.clone()))
         } else if key.ends_with("/query/state") {
             match parse("tick").transpose() {
                 Err(e) => ServerMessage::QueryError(QueryError { detail: e }),

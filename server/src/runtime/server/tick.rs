@@ -63,6 +63,8 @@ pub(super) struct TickLoop {
     pub(super) earlier: Published,
     /// The world's [`scene_hash`](impact_core::sim::World::scene_hash), sent in each welcome.
     pub(super) scene_hash: u64,
+    /// The rules and static world, as `query/scene` answers them.
+    pub(super) described: impact_protocol::SceneDescription,
 }
 
 impl TickLoop {
@@ -73,6 +75,7 @@ impl TickLoop {
         egress: SyncSender<Out>,
         shared: Arc<Shared>,
     ) -> TickLoop {
+        let described = scene.describe();
         let w = scene.world;
         let mut rb = opts.rollback.clone().unwrap_or_else(|| RollbackConfig::for_world(&w));
         rb.window_ticks = rb.window_ticks.max(1);
@@ -84,6 +87,7 @@ impl TickLoop {
         TickLoop {
             session,
             scene_hash,
+            described,
             opts,
             world,
             avatar: scene.avatar,
