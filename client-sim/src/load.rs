@@ -446,6 +446,8 @@ const CHECK_EVERY: Duration = Duration::from_millis(500);
 /// The run loop's state: the clients, both delay lines, and the figures gathered.
 struct Run<'a> {
     cfg: &'a LoadConfig,
+    /// The avatars' walk speed when they are characters: velocities become `move` intents.
+    walk_mps: Option<f64>,
     clients: Vec<Client>,
     rng: Rng,
     up: DelayLine<(usize, Vec<u32>, Vec<u8>)>,
@@ -507,32 +509,64 @@ fn clients(cfg: &LoadConfig, start: Instant) -> anyhow::Result<Vec<Client>> {
     Ok(out)
 }
 
-/// Gives the game clients a predictor: with `cfg.scene`, or the server's own rules (asked once,
-/// as a game's transport asks for each).
-fn predict(cfg: &LoadConfig, zs: &zenoh::Session, clients: &mut [Client]) -> anyhow::Result<()> {
-    if !clients.iter().any(|c| c.game) {
-        return Ok(());
+/// The rules the world runs: `cfg.scene`, or the server's own (asked once, as a game's transport
+/// asks for each). Game clients cannot do without; the others only learn from them whether
+/// avatars are characters, and without an answer (a server that predates `query/scene`) they
+/// are taken not to be.
+fn scene_rules(
+    cfg: &LoadConfig,
+    zs: &zenoh::Session,
+    clients: &[Client],
+) -> anyhow::Result<Option<impact_core::scene::SceneRules>> {
+    if let Some(r) = &cfg.scene {
+        return Ok(Some(r.clone()));
     }
-    let rules = match &cfg.scene {
-        Some(r) => r.clone(),
-        None => {
-            let d = impact_client::transport::query_scene(zs, &cfg.world, Duration::from_secs(10))?;
-            impact_core::scene::SceneRules::from_description(&d)?
-        }
-    };
+    let asked = impact_client::transport::query_scene(zs, &cfg.world, Duration::from_secs(10))
+        .map_err(anyhow::Error::from)
+        .and_then(|d| Ok(impact_core::scene::SceneRules::from_description(&d)?));
+    match asked {
+        Ok(r) => Ok(Some(r)),
+        Err(e) if clients.iter().any(|c| c.game) => Err(e.context("the game clients predict with the server's scene")),
+        Err(_) => Ok(None),
+    }
+}
+
+/// Gives the game clients a predictor on `rules`.
+fn predict(rules: Option<&impact_core::scene::SceneRules>, clients: &mut [Client]) -> anyhow::Result<()> {
     for c in clients.iter_mut().filter(|c| c.game) {
-        c.session.predict_with(Predictor::new(&rules, c.id, PredictConfig::default())?);
+        let rules = rules.ok_or_else(|| anyhow::anyhow!("predicting needs the server's scene"))?;
+        c.session.predict_with(Predictor::new(rules, c.id, PredictConfig::default())?);
     }
     Ok(())
+}
+
+/// The walk speed of the world's avatars, if they are characters (moved by `move` only).
+fn walk_speed(rules: Option<&impact_core::scene::SceneRules>) -> Option<f64> {
+    let r = rules?;
+    let class = r.avatar.as_ref()?.class;
+    r.world.config.classes.props[class.0 as usize].character.map(|c| c.walk_speed_mps)
+}
+
+/// A velocity a behaviour chose, as a character's intent: its direction and the fraction of the
+/// walk speed it asks for, with a jump now and then.
+fn intent(a: Action, walk_mps: f64, rng: &mut Rng) -> Action {
+    match a {
+        Action::SetVelocity { entity, velocity } => {
+            Action::Move { entity, direction: velocity.map(|v| v / walk_mps), jump: rng.unit() < 0.15 }
+        }
+        other => other,
+    }
 }
 
 /// Runs the load and returns its report.
 pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
     let mut clients = clients(cfg, Instant::now())?;
     let mut wiring = Wiring::connect(cfg, &clients)?;
-    predict(cfg, &wiring.sessions[0], &mut clients)?;
+    let rules = scene_rules(cfg, &wiring.sessions[0], &clients)?;
+    predict(rules.as_ref(), &mut clients)?;
     wiring.declare_presence(cfg, &clients)?;
     let mut run = Run::new(cfg, clients, wiring.sessions.len())?;
+    run.walk_mps = walk_speed(rules.as_ref());
     // State streams are counted over the load alone.
     wiring.state_bytes.store(0, Relaxed);
     wiring.state_frames.store(0, Relaxed);
@@ -589,6 +623,7 @@ impl Run<'_> {
         let load_start = Instant::now();
         Ok(Run {
             cfg,
+            walk_mps: None,
             input_keys: clients.iter().map(|c| keys::INPUT.key(&cfg.world, Some(c.id))).collect(),
             clients,
             rng: Rng::new(cfg.seed),
@@ -715,7 +750,11 @@ impl Run<'_> {
             if let (Some(entity), true) = (s.avatar(), c.playing_since.is_some() && now < self.load_end) {
                 if c.next_action <= now {
                     c.next_action += self.period;
-                    if s.input(vec![action(c.behaviour, entity, &mut self.rng, t)], now).is_ok() {
+                    let mut a = action(c.behaviour, entity, &mut self.rng, t);
+                    if let Some(walk) = self.walk_mps {
+                        a = intent(a, walk, &mut self.rng);
+                    }
+                    if s.input(vec![a], now).is_ok() {
                         self.r.inputs_sent += 1;
                     }
                 }

@@ -6,6 +6,9 @@
 //! cargo run --release -p impact-client --example play -- --connect tcp/127.0.0.1:7447 --world arena --seconds 20
 //! ```
 //!
+//! On a world whose avatars are characters (`--scene scenes/field.toml` on the server, `--world
+//! field` here) it walks by `move` intents and jumps now and then instead of setting velocities.
+//!
 //! Twice a second it also asks the server where every body was at the tick it just drew
 //! (`query/state?tick=T`) and compares: the interpolation error, the distance between a remote
 //! body as drawn and as the server had it at that tick.
@@ -75,11 +78,12 @@ fn p99(mut v: Vec<f64>) -> Option<f64> {
 
 /// Every third input fires at the nearest other body drawn, from where the avatar is drawn (`me`,
 /// predicted; or as the stream shows it), and says which; the others circle at 6 m/s, bobbing up
-/// and down.
+/// and down, or, for a character (moved by the server from intents), walk in a circle and jump
+/// now and then.
 fn next_action(
     drawn: &[DrawnBody],
     me: Option<[f64; 3]>,
-    avatar: EntityId,
+    (avatar, character): (EntityId, bool),
     inputs: u64,
     t: f64,
 ) -> (Action, Option<EntityId>) {
@@ -96,6 +100,10 @@ fn next_action(
             let direction = [0, 1, 2].map(|k| (b.position[k] - p[k]) / d);
             return (Action::FireRay { shooter: avatar, origin: p, direction, max_distance_m: 60.0 }, Some(b.entity));
         }
+    }
+    if character {
+        let direction = [(0.7 * t).cos(), 0.0, (0.7 * t).sin()];
+        return (Action::Move { entity: avatar, direction, jump: inputs % 7 == 0 }, None);
     }
     let velocity = [6.0 * (0.7 * t).cos(), 2.0 * (1.3 * t).sin(), 6.0 * (0.7 * t).sin()];
     (Action::SetVelocity { entity: avatar, velocity }, None)
@@ -215,7 +223,9 @@ fn play(a: &Args) -> Result<(), Box<dyn std::error::Error>> {
         if let (Some(avatar), true) = (game.avatar(), now >= next_input) {
             next_input += input_every;
             inputs += 1;
-            let (action, target) = next_action(&drawn, me, avatar, inputs, now.duration_since(start).as_secs_f64());
+            let character = game.predictor().is_some_and(|p| p.is_character());
+            let t = now.duration_since(start).as_secs_f64();
+            let (action, target) = next_action(&drawn, me, (avatar, character), inputs, t);
             let seq = game.input(vec![action], now)?;
             if let Some(t) = target {
                 aimed.insert(seq, t);

@@ -194,6 +194,12 @@ impl Predictor {
         })
     }
 
+    /// Whether the avatar is a character (its class has `character` rules): it moves by `move`
+    /// only, and a game sends intents instead of velocities.
+    pub fn is_character(&self) -> bool {
+        self.world.config.classes.props[self.class.0 as usize].character.is_some()
+    }
+
     /// The hash of the rules and static world this predictor runs on, to compare with the
     /// welcome's `scene_hash`.
     pub fn scene_hash(&self) -> u64 {
@@ -214,13 +220,13 @@ impl Predictor {
         self.avatar.map(|_| self.world.tick)
     }
 
-    /// The client's input `seq` stamped `tick`: its movement (`set_velocity`, `apply_impulse`)
-    /// is predicted; shots and spawns are the server's to resolve. An input for a tick already
+    /// The client's input `seq` stamped `tick`: its movement (`set_velocity`, `apply_impulse`,
+    /// a character's `move`) is predicted; shots and spawns are the server's to resolve. An input for a tick already
     /// predicted is applied by replaying from that tick.
     pub fn input(&mut self, tick: Tick, seq: u32, actions: &[Action]) {
         let moves: Vec<Action> = actions
             .iter()
-            .filter(|a| matches!(a, Action::SetVelocity { .. } | Action::ApplyImpulse { .. }))
+            .filter(|a| matches!(a, Action::SetVelocity { .. } | Action::ApplyImpulse { .. } | Action::Move { .. }))
             .cloned()
             .collect();
         if moves.is_empty() {
@@ -473,7 +479,9 @@ mod tests {
         }
 
         fn step(&mut self, inputs: &[TickInput]) {
-            self.stepper.step(&mut self.world, inputs, &mut TickOutput::default());
+            let mut out = TickOutput::default();
+            self.stepper.step(&mut self.world, inputs, &mut out);
+            assert!(out.skipped.is_empty(), "{:?}", out.skipped);
         }
 
         /// What the server's state stream says of the avatar.
@@ -526,11 +534,24 @@ mod tests {
         };
         let from_wire = SceneRules::from_description(&described).unwrap();
         for rules in [scene.rules(), from_wire] {
-            predicts_exactly(&scene, &rules);
+            predicts_exactly(&scene, &rules, walk);
         }
     }
 
-    fn predicts_exactly(scene: &Scene, rules: &SceneRules) {
+    /// A character (moved by the server's controller from `move` intents: walking into the
+    /// wall, along the ground, jumping now and then) is predicted to the bit as well.
+    #[test]
+    fn a_character_is_predicted_to_the_bit() {
+        let text = SCENE.replace("max_speed_mps = 10.0", "character = { walk_speed_mps = 4.0, jump_height_m = 1.0 }");
+        let scene = Scene::parse(&text, "<yard>").unwrap();
+        let intent = |avatar, k: u32| {
+            let a = f64::from(k) * 0.05;
+            vec![Action::Move { entity: avatar, direction: [a.cos(), 0.0, 0.7 * a.sin()], jump: k % 40 == 39 }]
+        };
+        predicts_exactly(&scene, &scene.rules(), intent);
+    }
+
+    fn predicts_exactly(scene: &Scene, rules: &SceneRules, act: impl Fn(EntityId, u32) -> Vec<Action>) {
         let mut server = Server::new(scene);
         let mut p = Predictor::new(rules, ME, PredictConfig::default()).unwrap();
         assert_eq!(p.check(scene.world.scene_hash()), Ok(()));
@@ -539,7 +560,7 @@ mod tests {
         for k in 0..300u32 {
             let tick = server.world.tick;
             // Stamped two ticks ahead, as an ahead client does; applied at its tick on both.
-            let actions = walk(server.avatar, k);
+            let actions = act(server.avatar, k);
             p.input(tick, k + 1, &actions);
             p.advance_to(Tick(tick.0 + 2));
             server.step(&[TickInput::new(ME, k + 1, actions)]);

@@ -45,6 +45,23 @@ pub enum Action {
         /// Longest distance tested, metres.
         max_distance_m: f64,
     },
+    /// Walk, run or jump an owned character (a body of a class with `character` rules): the
+    /// server moves it with its class's controller, so no client sets a character's velocity.
+    /// The intent holds until the next `move` (a held key), because the character keeps its
+    /// velocity: on the ground it walks along the surface at that speed, in the air it keeps
+    /// its momentum and steers by the class's `air_control`.
+    Move {
+        /// The owned character.
+        entity: EntityId,
+        /// Where to go, world frame: only the part across gravity counts (up is opposite
+        /// gravity, or +y in a world without). Its length is the fraction of the class's walk
+        /// speed, at most 1 (longer is taken as 1); zero stands still.
+        direction: [f64; 3],
+        /// Jump, if standing on walkable ground (ignored in the air): up at the speed that
+        /// reaches the class's jump height.
+        #[serde(default)]
+        jump: bool,
+    },
     /// Remove an owned entity.
     Despawn {
         /// The owned entity.

@@ -226,11 +226,15 @@ pub enum RejectReason {
     QueueFull,
     /// The same `(client, seq)` was already accepted.
     Duplicate,
+    /// The entity's class does not take this action: a character (a class with `character`
+    /// rules) moves by `move` only, so `set_velocity` and `apply_impulse` on it are refused, and
+    /// `move` moves characters only.
+    NotAllowed,
 }
 
 impl RejectReason {
     /// Every reason, in declaration order.
-    pub const ALL: [RejectReason; 11] = [
+    pub const ALL: [RejectReason; 12] = [
         RejectReason::Stale,
         RejectReason::Future,
         RejectReason::NotOwner,
@@ -242,6 +246,7 @@ impl RejectReason {
         RejectReason::Malformed,
         RejectReason::QueueFull,
         RejectReason::Duplicate,
+        RejectReason::NotAllowed,
     ];
 
     /// The snake_case name used on the wire and in stats.
@@ -258,6 +263,7 @@ impl RejectReason {
             RejectReason::Malformed => "malformed",
             RejectReason::QueueFull => "queue_full",
             RejectReason::Duplicate => "duplicate",
+            RejectReason::NotAllowed => "not_allowed",
         }
     }
 }

@@ -99,6 +99,25 @@ pub struct ClassRules {
     pub density_kg_m3: f64,
     /// Whether its bodies may sleep.
     pub can_sleep: bool,
+    /// Its controller, if its bodies are characters (moved by `move` only).
+    #[serde(default)]
+    pub character: Option<CharacterRules>,
+}
+
+/// A character class's controller, resolved.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CharacterRules {
+    /// Speed on the ground at a full `move`, m/s.
+    pub walk_speed_mps: f64,
+    /// The vertical speed a jump starts with, m/s (`sqrt(2 g h)` for the scene's jump height).
+    pub jump_speed_mps: f64,
+    /// Ground is walkable where its normal's component along up is at least this (the cosine
+    /// of the scene's slope limit).
+    pub min_ground_normal_up: f64,
+    /// The highest ledge it walks onto without a jump, m.
+    pub step_height_m: f64,
+    /// In the air a `move` changes the horizontal velocity by this fraction of the difference.
+    pub air_control: f64,
 }
 
 /// The response for an ordered pair of classes.

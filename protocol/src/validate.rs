@@ -135,6 +135,7 @@ impl Action {
                 }
                 positive(*max_distance_m, MAX_RAY_DISTANCE_M, || field("max_distance_m"))
             }
+            Action::Move { direction, .. } => vec3(direction, MAX_SPEED_MPS, "length", || field("direction")),
             Action::Despawn { .. } => Ok(()),
         }
     }

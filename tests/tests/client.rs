@@ -158,3 +158,54 @@ fn no_server_and_another_protocol_version_are_clear_errors() {
         other => panic!("expected a version mismatch, got {other:?}"),
     }
 }
+
+/// On a world whose avatars are characters, a client's velocity is refused with a typed reason
+/// (it would fly), and `move` intents walk it, predicted to the bit with the server's scene.
+#[test]
+fn a_character_is_walked_by_intents_and_its_velocity_is_refused() {
+    use impact_client::Outcome;
+    use impact_protocol::RejectReason;
+    let (server, ep) = server(Scene::load(&Scene::bundled_path("field")).unwrap(), |_| {});
+    let opts = ConnectOptions::new(vec![ep.clone()], WorldId::new("field").unwrap(), ClientId(1));
+    let conn = Connection::open(&opts).expect("connects");
+    let mut game = Session::new(SessionConfig::new(ClientId(1)));
+    join(&conn, &mut game);
+    assert!(game.predictor().is_some_and(|p| p.is_character()), "{:?}", game.prediction_problem());
+    let me = game.avatar().unwrap();
+
+    let fly = game.input(vec![Action::SetVelocity { entity: me, velocity: [0.0, 20.0, 0.0] }], Instant::now()).unwrap();
+    let by = Instant::now() + Duration::from_secs(3);
+    let mut refused = None;
+    while refused.is_none() && Instant::now() < by {
+        conn.pump(&mut game, Instant::now()).unwrap();
+        refused = game.take_answers().find(|a| a.seq == fly).map(|a| a.outcome);
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert_eq!(refused, Some(Outcome::Rejected(RejectReason::NotAllowed)));
+
+    let start = Instant::now();
+    let (mut next, mut k) = (start, 0u32);
+    while start.elapsed() < Duration::from_secs(3) {
+        let now = Instant::now();
+        conn.pump(&mut game, now).unwrap();
+        if now >= next {
+            next += Duration::from_millis(50);
+            k += 1;
+            let a = f64::from(k) * 0.1;
+            let walk = Action::Move { entity: me, direction: [a.cos(), 0.0, a.sin()], jump: k % 10 == 0 };
+            game.input(vec![walk], now).unwrap();
+        }
+        game.draw_avatar(now);
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let s = game.stats().clone();
+    assert_eq!(s.rejects.get(&RejectReason::NotAllowed), Some(&1), "only the velocity: {s:?}");
+    assert_eq!(s.rejects.len(), 1, "{s:?}");
+    let pr = game.prediction();
+    assert!(pr.compared >= 40, "{pr:?}");
+    assert!(pr.errors_untouched_m.iter().all(|&e| e == 0.0), "{pr:?}");
+    assert_eq!(pr.causes.get("unexplained"), None, "{:?}", pr.causes);
+    conn.close();
+    let summary = server.stop();
+    assert!(summary.inputs_accepted >= 50, "{summary}");
+}

@@ -204,6 +204,11 @@ fn bad_inputs_are_rejected_with_reasons_and_others_are_still_served() {
     let (reason, seq, t, detail) = next_reject(&bad_ack);
     assert_eq!((reason, seq, t), (RejectReason::TooLarge, Some(5), Some(tick)), "{detail}");
     assert!(detail.contains("17 actions") && detail.contains("16"), "{detail}");
+    // `move` drives characters only; the arena's avatars are not: refused by class, typed.
+    let walk = Action::Move { entity: bad_avatar, direction: [1.0, 0.0, 0.0], jump: true };
+    send_raw(&s, &world, bad, msgpack(&input(9, vec![walk])), Encoding::MsgPack);
+    let (reason, seq, t, detail) = next_reject(&bad_ack);
+    assert_eq!((reason, seq, t), (RejectReason::NotAllowed, Some(9), Some(tick)), "{detail}");
     // Malformed further in (an action type that does not exist): still matched by its header.
     let unknown_action = serde_json::json!({"type": "input", "client": bad.0, "seq": 6, "tick": tick.0,
         "actions": [{"type": "teleport", "entity": bad_avatar.0}]});

@@ -7,13 +7,15 @@
 use super::{AvatarRule, Scene, SceneError};
 use crate::broadphase::{BroadphaseKind, StaticIndex};
 use crate::geometry::Shape;
-use crate::sim::world::{Bodies, ClassId, ClassProps, Classes, Rule, SimConfig, StaticWorld, Terrain, World};
+use crate::sim::world::{
+    Bodies, CharacterProps, ClassId, ClassProps, Classes, Rule, SimConfig, StaticWorld, Terrain, World,
+};
 use crate::sim::Plan;
 use crate::terrain::heightfield::HeightField;
 use crate::toi::bisect::BisectConfig;
 use glam::{DQuat, DVec3};
 use impact_protocol::scene::{
-    AvatarSpec, ClassRules, PairRule, PlanSpec, StaticBody, TerrainSpec, ToiRules, WorldRules,
+    AvatarSpec, CharacterRules, ClassRules, PairRule, PlanSpec, StaticBody, TerrainSpec, ToiRules, WorldRules,
 };
 use impact_protocol::{SceneDescription, Tick, WorldId};
 use std::sync::Arc;
@@ -84,6 +86,13 @@ impl Scene {
                     gravity: p.gravity,
                     density_kg_m3: p.density_kg_m3,
                     can_sleep: p.can_sleep,
+                    character: p.character.map(|c| CharacterRules {
+                        walk_speed_mps: c.walk_speed_mps,
+                        jump_speed_mps: c.jump_speed_mps,
+                        min_ground_normal_up: c.min_ground_normal_up,
+                        step_height_m: c.step_height_m,
+                        air_control: c.air_control,
+                    }),
                 })
                 .collect(),
             pair_rules: (0..n * n)
@@ -228,6 +237,17 @@ impl Reader {
         let mut props = Vec::with_capacity(n);
         for (k, p) in d.classes.iter().enumerate() {
             finite(&[p.max_speed_mps, p.density_kg_m3], &format!("classes[{k}]"))?;
+            let character = p.character.as_ref().map(|c| CharacterProps {
+                walk_speed_mps: c.walk_speed_mps,
+                jump_speed_mps: c.jump_speed_mps,
+                min_ground_normal_up: c.min_ground_normal_up,
+                step_height_m: c.step_height_m,
+                air_control: c.air_control,
+            });
+            if let Some(c) = &character {
+                let v = [c.walk_speed_mps, c.jump_speed_mps, c.min_ground_normal_up, c.step_height_m, c.air_control];
+                finite(&v, &format!("classes[{k}].character"))?;
+            }
             props.push(ClassProps {
                 name: p.name.clone(),
                 is_static: p.is_static,
@@ -235,6 +255,7 @@ impl Reader {
                 gravity: p.gravity,
                 density_kg_m3: p.density_kg_m3,
                 can_sleep: p.can_sleep,
+                character,
             });
         }
         let mut classes = Classes::new(props, Rule::Ignore);
@@ -340,8 +361,8 @@ mod tests {
     #[test]
     fn every_bundled_scene_rebuilds_from_its_description() {
         for name in [
-            "arena", "breakout", "bullets", "corridor", "hillside", "pile", "ramp", "stack", "standing", "terrain",
-            "yard",
+            "arena", "breakout", "bullets", "corridor", "field", "hillside", "pile", "ramp", "stack", "standing",
+            "terrain", "yard",
         ] {
             let scene = bundled(name);
             let d = scene.describe();

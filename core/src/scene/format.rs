@@ -114,6 +114,53 @@ pub struct ClassDef {
     /// Whether bodies of this class may fall asleep (default true).
     #[serde(default = "default_true")]
     pub can_sleep: bool,
+    /// Its bodies are characters: moved by the server's controller from `move` intents (a
+    /// client's `set_velocity` and `apply_impulse` on them are refused). Any key left out takes
+    /// its default.
+    pub character: Option<CharacterDef>,
+}
+
+/// `character = { ... }` of a `[[class]]`: a walking character's controller.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CharacterDef {
+    /// Speed on the ground at a full `move`, m/s (default 5: a jog).
+    #[serde(default = "default_walk_speed")]
+    pub walk_speed_mps: f64,
+    /// How high a jump rises, m (default 1.2).
+    #[serde(default = "default_jump_height")]
+    pub jump_height_m: f64,
+    /// The steepest ground it stands and walks on, degrees from level (default 45); steeper is
+    /// a wall it slides down.
+    #[serde(default = "default_max_slope")]
+    pub max_slope_deg: f64,
+    /// The highest ledge it walks onto without a jump, m (default 0.3: a stair, a kerb).
+    #[serde(default = "default_step_height")]
+    pub step_height_m: f64,
+    /// In the air, a `move` changes the horizontal velocity by this fraction of the difference
+    /// (default 0.1: a little steering, momentum kept; 0 none, 1 full control).
+    #[serde(default = "default_air_control")]
+    pub air_control: f64,
+}
+
+fn default_walk_speed() -> f64 {
+    5.0
+}
+
+fn default_jump_height() -> f64 {
+    1.2
+}
+
+fn default_max_slope() -> f64 {
+    45.0
+}
+
+fn default_step_height() -> f64 {
+    0.3
+}
+
+fn default_air_control() -> f64 {
+    0.1
 }
 
 /// A response kind.

@@ -9,7 +9,9 @@ pub mod warnings;
 
 use crate::broadphase::StaticIndex;
 use crate::geometry::Shape;
-use crate::sim::world::{Bodies, ClassId, ClassProps, Classes, NewBody, Rule, SimConfig, StaticWorld, Terrain, World};
+use crate::sim::world::{
+    Bodies, CharacterProps, ClassId, ClassProps, Classes, NewBody, Rule, SimConfig, StaticWorld, Terrain, World,
+};
 use crate::terrain::heightfield::HeightField;
 use crate::toi::bisect::BisectConfig;
 use format::*;
@@ -279,6 +281,31 @@ impl Builder {
         Ok(bisect)
     }
 
+    /// A `character` table resolved: the jump height as the speed that reaches it under the
+    /// world's gravity, the slope limit as the least walkable normal component along up.
+    fn character(&self, c: &CharacterDef, w: &WorldKeys, entry: &str) -> Result<CharacterProps, SceneError> {
+        let check = |ok: bool, key: &str, want: &str| {
+            if ok {
+                Ok(())
+            } else {
+                Err(self.err(format!("{entry}.character.{key}"), want.to_string()))
+            }
+        };
+        check(c.walk_speed_mps.is_finite() && c.walk_speed_mps > 0.0, "walk_speed_mps", "must be positive and finite")?;
+        check(c.jump_height_m.is_finite() && c.jump_height_m >= 0.0, "jump_height_m", "must be 0 or more, finite")?;
+        check(c.max_slope_deg > 0.0 && c.max_slope_deg < 90.0, "max_slope_deg", "must be between 0 and 90 degrees")?;
+        check((0.0..=1.0).contains(&c.air_control), "air_control", "must be in [0, 1]")?;
+        check(c.step_height_m.is_finite() && c.step_height_m >= 0.0, "step_height_m", "must be 0 or more, finite")?;
+        let g = DVec3::from_array(w.gravity).length();
+        Ok(CharacterProps {
+            walk_speed_mps: c.walk_speed_mps,
+            jump_speed_mps: (2.0 * g * c.jump_height_m).sqrt(),
+            min_ground_normal_up: c.max_slope_deg.to_radians().cos(),
+            step_height_m: c.step_height_m,
+            air_control: c.air_control,
+        })
+    }
+
     /// The classes, with the default response, and which are immovable (static, or marked so).
     fn classes(&self, def: &SceneFile, w: &WorldKeys) -> Result<(Classes, Vec<bool>), SceneError> {
         if def.classes.is_empty() {
@@ -297,6 +324,13 @@ impl Builder {
             if !(c.density_kg_m3.is_finite() && c.density_kg_m3 > 0.0) {
                 return Err(self.err(format!("{entry}.density_kg_m3"), "must be positive and finite"));
             }
+            let character = match &c.character {
+                Some(_) if c.is_static => {
+                    return Err(self.err(format!("{entry}.character"), "a static class cannot be a character"));
+                }
+                Some(ch) => Some(self.character(ch, w, &entry)?),
+                None => None,
+            };
             props.push(ClassProps {
                 name: c.name.clone(),
                 is_static: c.is_static,
@@ -304,6 +338,7 @@ impl Builder {
                 gravity: c.gravity,
                 density_kg_m3: c.density_kg_m3,
                 can_sleep: c.can_sleep,
+                character,
             });
             immovable.push(c.immovable || c.is_static);
         }

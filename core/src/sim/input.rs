@@ -135,6 +135,22 @@ fn speed_ok(
     Ok(())
 }
 
+/// Whether the body in `slot` takes `action` by its class: a character moves by `move` only,
+/// and `move` moves characters only.
+fn allowed(w: &World, slot: usize, action: &str) -> Result<(), (RejectReason, String)> {
+    let props = &w.config.classes.props[w.bodies.class[slot].0 as usize];
+    let character = props.character.is_some();
+    if character == (action == "move") {
+        return Ok(());
+    }
+    let why = if character {
+        format!("{} is a character (class {:?}): it moves by `move`, not `{action}`", w.bodies.id[slot], props.name)
+    } else {
+        format!("{} is not a character (class {:?}): `move` moves characters only", w.bodies.id[slot], props.name)
+    };
+    Err((RejectReason::NotAllowed, why))
+}
+
 /// Whether a client may spawn a body of `shape` (`field` names it in the reason).
 fn spawnable(shape: &ShapeSpec, field: &str) -> Result<(), (RejectReason, String)> {
     if !shape.spawnable() {
@@ -151,9 +167,18 @@ pub fn check(w: &World, client: ClientId, actions: &[Action]) -> Result<(), (Rej
         match a {
             Action::SetVelocity { entity, velocity } => {
                 let s = owned(w, client, *entity)?;
+                allowed(w, s, "set_velocity")?;
                 speed_ok(w, w.bodies.class[s], *velocity, &format!("actions[{k}].velocity"))?;
             }
-            Action::ApplyImpulse { entity, .. } | Action::Despawn { entity } => {
+            Action::ApplyImpulse { entity, .. } => {
+                let s = owned(w, client, *entity)?;
+                allowed(w, s, "apply_impulse")?;
+            }
+            Action::Move { entity, .. } => {
+                let s = owned(w, client, *entity)?;
+                allowed(w, s, "move")?;
+            }
+            Action::Despawn { entity } => {
                 owned(w, client, *entity)?;
             }
             Action::FireRay { shooter, .. } => {
@@ -300,6 +325,11 @@ fn apply_action(
                 shooter: *shooter,
                 hit,
             });
+        }
+        Action::Move { entity, direction, jump } => {
+            if let Some(s) = w.bodies.slot(*entity) {
+                crate::sim::character::apply_move(w, s, *direction, *jump);
+            }
         }
         Action::Despawn { entity } => removed.push(*entity),
     }

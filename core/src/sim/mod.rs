@@ -4,6 +4,7 @@
 //! are maps over bodies or pairs run on a [`Pool`] ([`crate::par`] says why their output cannot depend
 //! on how many threads it has).
 
+pub mod character;
 pub mod input;
 pub mod island;
 pub mod output;

@@ -32,6 +32,8 @@ pub struct Plan {
     pub rollback: bool,
     /// Islands fall asleep after this many still ticks (0: never).
     pub sleep_after_ticks: u32,
+    /// Some class is a character: the controller runs before gravity.
+    pub characters: bool,
 }
 
 /// Below this many bodies brute force beats building any structure.
@@ -79,6 +81,7 @@ impl Plan {
             gravity: cfg.gravity != glam::DVec3::ZERO,
             rollback: cfg.window_ticks > 0,
             sleep_after_ticks: cfg.sleep_after_ticks,
+            characters: cfg.classes.props.iter().any(|p| p.character.is_some()),
         }
     }
 
@@ -120,6 +123,7 @@ impl fmt::Display for Plan {
                 self.sleep_after_ticks
             )?;
         }
+        writeln!(f, "  characters      {}", on(self.characters))?;
         writeln!(f, "  rollback        {}", on(self.rollback))?;
         write!(f, "  always          static-static pairs never tested; resting pairs not re-tested")
     }

@@ -75,6 +75,24 @@ pub struct ClassProps {
     pub density_kg_m3: f64,
     /// Whether bodies of this class may fall asleep.
     pub can_sleep: bool,
+    /// The controller, if its bodies are characters (see [`crate::sim::character`]).
+    pub character: Option<CharacterProps>,
+}
+
+/// A character class's controller, resolved (the scene's degrees and heights already turned
+/// into the numbers the tick uses, so a client receives them as they are).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CharacterProps {
+    /// Speed on the ground at a full `move`, m/s.
+    pub walk_speed_mps: f64,
+    /// The vertical speed a jump starts with, m/s.
+    pub jump_speed_mps: f64,
+    /// Ground is walkable where its normal's component along up is at least this.
+    pub min_ground_normal_up: f64,
+    /// The highest ledge it walks onto without a jump, m.
+    pub step_height_m: f64,
+    /// The fraction of the horizontal difference a `move` makes up in the air.
+    pub air_control: f64,
 }
 
 /// The class table: properties and the response rule for every ordered pair.
@@ -626,6 +644,7 @@ mod tests {
             gravity: false,
             density_kg_m3: 1000.0,
             can_sleep: true,
+            character: None,
         };
         let mut table = Classes::new(vec![class("ball"), class("wall"), class("brick")], Rule::Trigger);
         table.set_rule(ClassId(0), ClassId(1), Rule::Ignore);

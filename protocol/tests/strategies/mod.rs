@@ -389,6 +389,13 @@ fn scene() -> impl Strategy<Value = ServerMessage> {
                         gravity: !is_static,
                         density_kg_m3: 1000.0,
                         can_sleep: true,
+                        character: (!is_static).then_some(CharacterRules {
+                            walk_speed_mps: speed,
+                            jump_speed_mps: 4.85,
+                            min_ground_normal_up: 0.707,
+                            step_height_m: 0.3,
+                            air_control: 0.1,
+                        }),
                     })
                     .collect(),
                 statics: statics

@@ -30,7 +30,10 @@ use std::collections::BTreeSet;
 fn entities(input: &TickInput, frame: &Frame, out: &mut BTreeSet<EntityId>) {
     for a in &input.actions {
         match a {
-            Action::SetVelocity { entity, .. } | Action::ApplyImpulse { entity, .. } | Action::Despawn { entity } => {
+            Action::SetVelocity { entity, .. }
+            | Action::ApplyImpulse { entity, .. }
+            | Action::Move { entity, .. }
+            | Action::Despawn { entity } => {
                 out.insert(*entity);
             }
             Action::FireRay { shooter, origin, direction, max_distance_m } => {

@@ -1,10 +1,12 @@
-//! Stage 2, integration: sleeping bodies that were given a velocity wake, gravity applies to
-//! awake bodies; after the resting contacts are solved, each body's swept bounds (the box
+//! Stage 2, integration: sleeping bodies that were given a velocity wake, characters follow
+//! their ground and are held off walls ([`character::control`]), gravity applies to awake bodies
+//! that are not standing characters; after the resting contacts are solved, each body's swept bounds (the box
 //! around its start and end poses, padded by the contact slop) are computed.
 
 use super::Stepper;
 use crate::geometry::Aabb;
 use crate::par::MIN_PIECE;
+use crate::sim::character;
 use crate::sim::world::World;
 use glam::DVec3;
 
@@ -23,14 +25,22 @@ impl Stepper {
         if !self.wake_seeds.is_empty() {
             self.islands.wake(w, &self.wake_seeds);
         }
+        if self.plan.characters {
+            character::control(w, &mut self.characters);
+        }
         let cfg = &w.config;
         let dt = cfg.dt;
         let n = w.bodies.len();
         let b = &mut w.bodies;
         self.awake = if any_asleep { b.asleep.iter().filter(|a| !**a).count() } else { n };
         if self.plan.gravity {
+            let grounded = |i: usize| self.plan.characters && self.characters.grounded[i];
             for i in 0..n {
-                if !b.asleep[i] && b.inv_mass[i] > 0.0 && cfg.classes.props[b.class[i].0 as usize].gravity {
+                if !b.asleep[i]
+                    && b.inv_mass[i] > 0.0
+                    && cfg.classes.props[b.class[i].0 as usize].gravity
+                    && !grounded(i)
+                {
                     b.vel[i] += cfg.gravity * dt;
                 }
             }

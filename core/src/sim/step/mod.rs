@@ -241,6 +241,8 @@ pub struct Stepper {
     /// Awake bodies after this tick's wakes (set by `integrate`).
     awake: usize,
     wake_seeds: Vec<u32>,
+    /// The character controller's buffers.
+    characters: crate::sim::character::Scratch,
     islands: crate::sim::island::Islands,
     rows: Vec<contacts::Row>,
     contact_impulse: Vec<(f64, DVec3)>,
@@ -303,6 +305,7 @@ impl Stepper {
             settled: Vec::new(),
             awake: 0,
             wake_seeds: Vec::new(),
+            characters: Default::default(),
             islands: Default::default(),
             rows: Vec::new(),
             contact_impulse: Vec::new(),
