@@ -9,14 +9,15 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case")]
 pub enum Action {
-    /// Set the velocity of an entity the client owns.
+    /// Set the velocity of an entity the client owns (game logic: any dynamic body).
     SetVelocity {
         /// The owned entity.
         entity: EntityId,
         /// New velocity, m/s.
         velocity: [f64; 3],
     },
-    /// Add `impulse / mass` to the velocity of an owned entity.
+    /// Add `impulse / mass` to the velocity of an owned entity (game logic: any dynamic body,
+    /// characters too: a knock-back).
     ApplyImpulse {
         /// The owned entity.
         entity: EntityId,
@@ -62,7 +63,40 @@ pub enum Action {
         #[serde(default)]
         jump: bool,
     },
-    /// Remove an owned entity.
+    /// Game logic only: put any body at `position` (and set its velocity, if given): a respawn,
+    /// a teleporter, a reset.
+    Teleport {
+        /// Any dynamic body.
+        entity: EntityId,
+        /// Where, metres.
+        position: [f64; 3],
+        /// Its velocity from then on, m/s (`None`: kept).
+        #[serde(default)]
+        velocity: Option<[f64; 3]>,
+    },
+    /// Game logic only: spawn a body of any dynamic class: a pickup, a crate, a player's new
+    /// body.
+    Spawn {
+        /// The class, by its name in the scene.
+        class: String,
+        /// Its shape.
+        shape: ShapeSpec,
+        /// Centre, metres.
+        position: [f64; 3],
+        /// Velocity, m/s.
+        velocity: [f64; 3],
+        /// The client that owns it (`None`: nobody; the logic acts on it).
+        #[serde(default)]
+        owner: Option<crate::ids::ClientId>,
+    },
+    /// Game logic only: change a body's class (a player becomes a ghost, a pickup is taken).
+    SetClass {
+        /// Any dynamic body.
+        entity: EntityId,
+        /// The new class, by name: a dynamic one.
+        class: String,
+    },
+    /// Remove an owned entity (game logic: any dynamic body).
     Despawn {
         /// The owned entity.
         entity: EntityId,

@@ -34,6 +34,9 @@ pub struct LoggedInput {
     /// (lag compensation reads a history a follower may not hold: the outcome is logged).
     #[serde(default)]
     pub rewound: Vec<LoggedRay>,
+    /// Sent by a game-logic client: its actions act on any body (see `Action::Teleport`).
+    #[serde(default)]
+    pub logic: bool,
 }
 
 /// A rewound hitscan ray of a logged input.

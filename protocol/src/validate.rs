@@ -57,6 +57,16 @@ fn positive(x: f64, max: f64, path: impl Fn() -> String) -> Result<(), ProtocolE
     }
 }
 
+fn name(s: &str, path: impl Fn() -> String) -> Result<(), ProtocolError> {
+    if s.is_empty() || s.len() > MAX_NAME_LEN {
+        return Err(ProtocolError::OutOfRange {
+            field: path(),
+            detail: format!("a name of 1 to {MAX_NAME_LEN} bytes"),
+        });
+    }
+    Ok(())
+}
+
 fn count(n: usize, max: usize, path: &str) -> Result<(), ProtocolError> {
     if n <= max {
         Ok(())
@@ -136,6 +146,23 @@ impl Action {
                 positive(*max_distance_m, MAX_RAY_DISTANCE_M, || field("max_distance_m"))
             }
             Action::Move { direction, .. } => vec3(direction, MAX_SPEED_MPS, "length", || field("direction")),
+            Action::Teleport { position, velocity, .. } => {
+                coord3(position, || field("position"))?;
+                velocity.as_ref().map_or(Ok(()), |v| vec3(v, MAX_SPEED_MPS, "speed (m/s)", || field("velocity")))
+            }
+            Action::Spawn { class, shape, position, velocity, .. } => {
+                name(class, || field("class"))?;
+                if !shape.spawnable() {
+                    return Err(ProtocolError::OutOfRange {
+                        field: field("shape"),
+                        detail: "a spawn is a sphere, a capsule or a cuboid".into(),
+                    });
+                }
+                shape.validate_at(&|| field("shape"))?;
+                coord3(position, || field("position"))?;
+                vec3(velocity, MAX_SPEED_MPS, "speed (m/s)", || field("velocity"))
+            }
+            Action::SetClass { class, .. } => name(class, || field("class")),
             Action::Despawn { .. } => Ok(()),
         }
     }

@@ -5,7 +5,7 @@
 
 use impact_core::scene::Scene;
 use impact_core::sim::{Plan, Pool};
-use impact_protocol::{Action, ClientId, ClientInput, EntityId, LogTick, Tick};
+use impact_protocol::{Action, ClientId, ClientInput, EntityId, LogTick, ShapeSpec, Tick};
 use impact_server::recording::{self, Recorder};
 use impact_server::rollback::log::ConfirmedTick;
 use impact_server::rollback::{RollbackConfig, Session};
@@ -17,10 +17,14 @@ fn new_session(scene: &Scene) -> Session {
     Session::new(scene.world.clone(), Plan::for_world(&scene.world), RollbackConfig::for_world(&scene.world))
 }
 
+/// The game-logic client of these tests.
+const LOGIC: ClientId = ClientId(900);
+
 /// Runs `scene` to `until` with inputs arriving at their `arrive` tick (late ones roll back),
 /// and returns every tick's log entry, in order (the window's last ticks from `finish`).
 fn run_logged(scene: &Scene, inputs: &[(u32, ClientInput)], until: u32) -> Vec<ConfirmedTick> {
     let mut s = new_session(scene);
+    s.set_logic_clients([LOGIC]);
     let mut log = Vec::new();
     while s.now().0 < until {
         for (arrive, input) in inputs {
@@ -125,6 +129,53 @@ fn a_checkpoint_restores_the_complete_state() {
     let other = Scene::load(&Scene::bundled_path("bullets")).unwrap();
     let e = Session::restore(&other.world, &c, Plan::for_world(&other.world), p.config().clone()).unwrap_err();
     assert!(e.contains("other settings") || e.contains("class") || e.contains("hash"), "{e}");
+}
+
+/// Game logic's commands (the ball teleported back into play, a second ball spawned, the bat
+/// pushed), some arriving late: they roll back like inputs, the log marks them, and a follower
+/// and a replay of the recording reach every hash without knowing who has the role.
+#[test]
+fn game_logic_commands_roll_back_log_and_replay_bit_for_bit() {
+    let scene = Scene::load(&Scene::bundled_path("breakout")).unwrap();
+    let ball = scene.world.bodies.id[scene.world.bodies.class.iter().position(|c| c.0 == 0).unwrap()];
+    let command = |seq: u32, tick: u32, actions: Vec<Action>| ClientInput {
+        aim_tick: None,
+        view_tick: None,
+        client: LOGIC,
+        seq,
+        tick: Tick(tick),
+        actions,
+    };
+    let mut inputs = breakout_inputs();
+    let back = Action::Teleport { entity: ball, position: [0.0, 2.0, 0.0], velocity: Some([3.0, 6.0, 0.0]) };
+    let another = Action::Spawn {
+        class: "ball".into(),
+        shape: ShapeSpec::Sphere { radius_m: 0.25 },
+        position: [1.0, 3.0, 0.0],
+        velocity: [-4.0, 5.0, 0.0],
+        owner: None,
+    };
+    let push = Action::ApplyImpulse { entity: EntityId(6), impulse: [0.0, 50.0, 0.0] };
+    inputs.push((90, command(1, 80, vec![back.clone()]))); // 10 ticks late
+    inputs.push((120, command(2, 120, vec![another])));
+    inputs.push((165, command(3, 160, vec![push, back]))); // 5 ticks late
+    let log = run_logged(&scene, &inputs, 300);
+    let marked: Vec<_> = log.iter().flat_map(|l| &l.inputs).filter(|i| i.logic).map(|i| i.seq).collect();
+    assert_eq!(marked, vec![1, 2, 3], "every command logged, marked as game logic's");
+    assert!(log.iter().flat_map(|l| &l.inputs).filter(|i| i.client != LOGIC).all(|i| !i.logic));
+    // A follower that knows no logic client applies them as logged.
+    let mut s = new_session(&scene);
+    assert_eq!(follow(&mut s, &log, &scene), Vec::<u32>::new());
+
+    let path = std::env::temp_dir().join(format!("impact-logic-recording-{}.jsonl", std::process::id()));
+    let mut r = Recorder::create(&path, &scene).unwrap();
+    for l in &log {
+        r.write(&l.to_wire());
+    }
+    r.flush().unwrap();
+    let report = recording::replay(&scene, &path, &Pool::sequential(), |_| {}).unwrap();
+    assert_eq!((report.ticks, report.matched, report.first_mismatch), (300, 300, None), "{report}");
+    let _ = std::fs::remove_file(&path);
 }
 
 #[test]

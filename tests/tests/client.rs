@@ -22,7 +22,10 @@ fn options(ep: &str, client: u32) -> ConnectOptions {
 /// Pumps until the session plays and has the server's scene to predict with (bounded).
 fn join(conn: &Connection, game: &mut Session) {
     let by = Instant::now() + Duration::from_secs(10);
-    while game.status() != Status::Playing || (game.predictor().is_none() && game.prediction_problem().is_none()) {
+    let predicting = game.config().predict.is_some();
+    while game.status() != Status::Playing
+        || (predicting && game.predictor().is_none() && game.prediction_problem().is_none())
+    {
         assert!(Instant::now() < by, "not playing within 10 s: {:?} {:?}", game.status(), game.stats());
         conn.pump(game, Instant::now()).unwrap();
         std::thread::sleep(Duration::from_millis(5));
@@ -208,4 +211,71 @@ fn a_character_is_walked_by_intents_and_its_velocity_is_refused() {
     conn.close();
     let summary = server.stop();
     assert!(summary.inputs_accepted >= 50, "{summary}");
+}
+
+/// A game-logic client (no avatar of its own) teleports a player's avatar: acked with its tick,
+/// and the world has the avatar there; the player sending the same is refused `not_allowed`.
+#[test]
+fn game_logic_teleports_a_player_and_the_player_may_not() {
+    use impact_client::Outcome;
+    use impact_protocol::{keys, RejectReason, ServerMessage};
+    let logic_id = ClientId(900);
+    let (server, ep) =
+        server(Scene::load(&Scene::bundled_path("arena")).unwrap(), |o| o.logic_clients = vec![logic_id]);
+    let conn = Connection::open(&options(&ep, 1)).expect("connects");
+    let mut player = Session::new(SessionConfig::new(ClientId(1)));
+    join(&conn, &mut player);
+    let avatar = player.avatar().unwrap();
+    let quiet = ConnectOptions { scene: false, state: false, ..options(&ep, logic_id.0) };
+    let lconn = Connection::open(&quiet).expect("connects");
+    let mut logic = Session::new(SessionConfig { predict: None, ..SessionConfig::new(logic_id) });
+    join(&lconn, &mut logic);
+    assert_eq!(logic.avatar(), None, "game logic plays no body");
+
+    // Pumps both until `seq` of `s` is answered.
+    let answer = |s: &mut Session, c: &Connection, other: (&mut Session, &Connection), seq: u32| {
+        let by = Instant::now() + Duration::from_secs(3);
+        loop {
+            assert!(Instant::now() < by, "no answer to {seq}");
+            c.pump(s, Instant::now()).unwrap();
+            other.1.pump(other.0, Instant::now()).unwrap();
+            if let Some(a) = s.take_answers().find(|a| a.seq == seq) {
+                return a;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    };
+    let to = [0.0, 5.0, 0.0];
+    let jump = Action::Teleport { entity: avatar, position: to, velocity: Some([0.0; 3]) };
+    let seq = player.input(vec![jump.clone()], Instant::now()).unwrap();
+    let a = answer(&mut player, &conn, (&mut logic, &lconn), seq);
+    assert_eq!(a.outcome, Outcome::Rejected(RejectReason::NotAllowed));
+
+    let seq = logic.input(vec![jump], Instant::now()).unwrap();
+    let a = answer(&mut logic, &lconn, (&mut player, &conn), seq);
+    let Outcome::Accepted { applied_tick, .. } = a.outcome else { panic!("{:?}", a.outcome) };
+    // The world at the start of the next tick: the avatar where it was put (nothing moves it
+    // in one tick but a collision, unlikely there and then).
+    let next = applied_tick.0 + 1;
+    let by = Instant::now() + Duration::from_secs(3);
+    let state = loop {
+        conn.pump(&mut player, Instant::now()).unwrap();
+        lconn.pump(&mut logic, Instant::now()).unwrap();
+        match query(
+            lconn.zenoh(),
+            keys::QUERY_STATE.key(&WorldId::new("arena").unwrap(), None),
+            &format!("tick={next}"),
+        ) {
+            Some(ServerMessage::Snapshot(s)) => break s,
+            _ => assert!(Instant::now() < by, "no state at tick {next}"),
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let body = state.bodies.iter().find(|b| b.entity == avatar).unwrap();
+    let d = (0..3).map(|k| (body.position[k] - to[k]).powi(2)).sum::<f64>().sqrt();
+    assert!(d < 0.5, "the avatar is at {:?}, not {to:?}", body.position);
+    conn.close();
+    lconn.close();
+    let summary = server.stop();
+    assert_eq!(summary.inputs_accepted, 1, "{summary}");
 }

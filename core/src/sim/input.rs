@@ -33,12 +33,16 @@ pub struct TickInput {
     /// `rewound` came from the input log (a follower, a replay): it is used as it is, never cast
     /// again (the worlds it was cast against may be older than the follower's history).
     pub logged: bool,
+    /// Sent by a game-logic client (the server decides who is one, and logs it with the input):
+    /// its actions may act on any dynamic body, and only it may teleport, spawn any class and
+    /// change a body's class.
+    pub logic: bool,
 }
 
 impl TickInput {
     /// An input with no view tick of its own.
     pub fn new(client: ClientId, seq: u32, actions: Vec<Action>) -> TickInput {
-        TickInput { client, seq, actions, view_tick: None, rewound: Vec::new(), logged: false }
+        TickInput { client, seq, actions, view_tick: None, rewound: Vec::new(), logged: false, logic: false }
     }
 }
 
@@ -111,13 +115,48 @@ pub(crate) fn apply_system(w: &mut World, system: &[SystemAction], out: &mut Tic
     }
 }
 
-fn owned(w: &World, client: ClientId, e: EntityId) -> Result<usize, (RejectReason, String)> {
+/// Who sent an input: a player acts on what it owns, game logic on any body.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Sender {
+    /// The client.
+    pub client: ClientId,
+    /// It has the game-logic role.
+    pub logic: bool,
+}
+
+impl Sender {
+    /// A player.
+    pub fn player(client: ClientId) -> Sender {
+        Sender { client, logic: false }
+    }
+}
+
+/// The slot of `e`, if `who` may act on it: its owner, or game logic.
+fn owned(w: &World, who: Sender, e: EntityId) -> Result<usize, (RejectReason, String)> {
     match w.bodies.slot(e) {
         None => Err((RejectReason::UnknownEntity, format!("entity {e} does not exist"))),
-        Some(s) if w.bodies.owner[s] != Some(client) => {
-            Err((RejectReason::NotOwner, format!("entity {e} is not owned by client {client}")))
+        Some(s) if !who.logic && w.bodies.owner[s] != Some(who.client) => {
+            Err((RejectReason::NotOwner, format!("entity {e} is not owned by client {}", who.client)))
         }
         Some(s) => Ok(s),
+    }
+}
+
+/// `Ok` for game logic; a player is told the action is not its to send.
+fn logic_only(who: Sender, action: &str) -> Result<(), (RejectReason, String)> {
+    if who.logic {
+        return Ok(());
+    }
+    Err((RejectReason::NotAllowed, format!("`{action}` is game logic's: client {} has no game-logic role", who.client)))
+}
+
+/// The dynamic class named `name`.
+fn dynamic_class(w: &World, name: &str, field: &str) -> Result<crate::sim::world::ClassId, (RejectReason, String)> {
+    let props = &w.config.classes.props;
+    match props.iter().position(|p| p.name == name) {
+        Some(k) if !props[k].is_static => Ok(crate::sim::world::ClassId(k as u16)),
+        Some(_) => Err((RejectReason::OutOfRange, format!("{field}: class {name:?} is static"))),
+        None => Err((RejectReason::OutOfRange, format!("{field}: the scene has no class {name:?}"))),
     }
 }
 
@@ -159,30 +198,60 @@ fn spawnable(shape: &ShapeSpec, field: &str) -> Result<(), (RejectReason, String
     Shape::from_spec(shape).map(drop).map_err(|e| (RejectReason::OutOfRange, format!("{field}.{e}")))
 }
 
-/// Whether `client` may apply `actions` to the world as it is now. The runtime calls this on
-/// arrival; [`apply`] calls it again at the input's tick.
+/// Whether a player `client` may apply `actions` to the world as it is now ([`check_as`] for
+/// game logic).
 pub fn check(w: &World, client: ClientId, actions: &[Action]) -> Result<(), (RejectReason, String)> {
+    check_as(w, Sender::player(client), actions)
+}
+
+/// Whether `who` may apply `actions` to the world as it is now. The runtime calls this on
+/// arrival; [`apply`] calls it again at the input's tick.
+pub fn check_as(w: &World, who: Sender, actions: &[Action]) -> Result<(), (RejectReason, String)> {
     let mut spawns = 0usize;
     for (k, a) in actions.iter().enumerate() {
         match a {
             Action::SetVelocity { entity, velocity } => {
-                let s = owned(w, client, *entity)?;
-                allowed(w, s, "set_velocity")?;
+                let s = owned(w, who, *entity)?;
+                if !who.logic {
+                    allowed(w, s, "set_velocity")?;
+                }
                 speed_ok(w, w.bodies.class[s], *velocity, &format!("actions[{k}].velocity"))?;
             }
             Action::ApplyImpulse { entity, .. } => {
-                let s = owned(w, client, *entity)?;
-                allowed(w, s, "apply_impulse")?;
+                let s = owned(w, who, *entity)?;
+                if !who.logic {
+                    allowed(w, s, "apply_impulse")?;
+                }
             }
             Action::Move { entity, .. } => {
-                let s = owned(w, client, *entity)?;
+                let s = owned(w, who, *entity)?;
                 allowed(w, s, "move")?;
             }
-            Action::Despawn { entity } => {
-                owned(w, client, *entity)?;
+            Action::Despawn { entity } | Action::Teleport { entity, .. } => {
+                if matches!(a, Action::Teleport { .. }) {
+                    logic_only(who, "teleport")?;
+                }
+                owned(w, who, *entity)?;
+            }
+            Action::SetClass { entity, class } => {
+                logic_only(who, "set_class")?;
+                owned(w, who, *entity)?;
+                dynamic_class(w, class, &format!("actions[{k}].class"))?;
+            }
+            Action::Spawn { class, shape, .. } => {
+                logic_only(who, "spawn")?;
+                dynamic_class(w, class, &format!("actions[{k}].class"))?;
+                spawnable(shape, &format!("actions[{k}].shape"))?;
+                spawns += 1;
+                if w.bodies.len() + spawns > w.config.max_bodies as usize {
+                    return Err((
+                        RejectReason::OutOfRange,
+                        format!("the world is full ({} bodies)", w.config.max_bodies),
+                    ));
+                }
             }
             Action::FireRay { shooter, .. } => {
-                owned(w, client, *shooter)?;
+                owned(w, who, *shooter)?;
             }
             Action::SpawnProjectile { shape, velocity, .. } => {
                 spawnable(shape, &format!("actions[{k}].shape"))?;
@@ -222,7 +291,8 @@ pub fn apply(w: &mut World, inputs: &[TickInput], out: &mut TickOutput) {
     let mut removed: Vec<EntityId> = Vec::new();
     for k in order {
         let input = &inputs[k];
-        if let Err((reason, detail)) = check(w, input.client, &input.actions) {
+        let who = Sender { client: input.client, logic: input.logic };
+        if let Err((reason, detail)) = check_as(w, who, &input.actions) {
             out.skipped.push(Skipped { client: input.client, seq: input.seq, tick: w.tick, reason, detail });
             continue;
         }
@@ -326,6 +396,42 @@ fn apply_action(
                 hit,
             });
         }
+        Action::Teleport { entity, position, velocity } => {
+            if let Some(s) = w.bodies.slot(*entity) {
+                w.bodies.pos[s] = DVec3::from_array(*position);
+                if let Some(v) = velocity {
+                    w.bodies.vel[s] = DVec3::from_array(*v);
+                }
+                // Where it was touching is no longer where it is.
+                let id = *entity;
+                w.touching.retain(|t| t.a != id && t.b != id);
+                crate::sim::island::Islands::default().wake(w, &[s as u32]);
+            }
+        }
+        Action::SetClass { entity, class } => {
+            let found = w.config.classes.props.iter().position(|p| &p.name == class);
+            if let (Some(s), Some(k)) = (w.bodies.slot(*entity), found) {
+                w.bodies.set_class(s, crate::sim::world::ClassId(k as u16));
+                crate::sim::island::Islands::default().wake(w, &[s as u32]);
+            }
+        }
+        Action::Spawn { class, shape, position, velocity, owner } => {
+            let Some(k) = w.config.classes.props.iter().position(|p| &p.name == class) else { return };
+            let props = &classes.props[k];
+            let Ok(shape) = Shape::from_spec(shape) else { return };
+            let inv_mass = 1.0 / (props.density_kg_m3 * shape.volume());
+            let vel = clamp_speed(DVec3::from_array(*velocity), props.max_speed_mps);
+            let body = NewBody {
+                class: crate::sim::world::ClassId(k as u16),
+                shape,
+                pos: DVec3::from_array(*position),
+                vel,
+                rot: DQuat::IDENTITY,
+                inv_mass,
+                owner: *owner,
+            };
+            w.spawn(body);
+        }
         Action::Move { entity, direction, jump } => {
             if let Some(s) = w.bodies.slot(*entity) {
                 crate::sim::character::apply_move(w, s, *direction, *jump);
@@ -371,5 +477,103 @@ fn remove(w: &mut World, removed: &[EntityId], out: &mut TickOutput) {
     let seeds: Vec<u32> = partners.iter().filter_map(|id| w.bodies.slot(*id)).map(|s| s as u32).collect();
     if !seeds.is_empty() {
         crate::sim::island::Islands::default().wake(w, &seeds);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::Scene;
+    use crate::sim::{Plan, Stepper, SystemAction};
+
+    const PLAYER: ClientId = ClientId(1);
+    const LOGIC: ClientId = ClientId(900);
+
+    /// A world with a player's avatar in it.
+    fn world() -> (World, Stepper, EntityId) {
+        let scene = Scene::parse(
+            r#"
+            [world]
+            name = "game"
+            tick_hz = 64
+
+            [[class]]
+            name = "player"
+
+            [[class]]
+            name = "ghost"
+
+            [[class]]
+            name = "wall"
+            static = true
+
+            [[body]]
+            class = "wall"
+            shape = { type = "cuboid", half_extents_m = [1.0, 1.0, 1.0] }
+            position = [20.0, 0.0, 0.0]
+
+            [spawn]
+            avatar_class = "player"
+            avatar_shape = { type = "sphere", radius_m = 0.5 }
+            region_min = [0.0, 0.0, 0.0]
+            region_max = [0.0, 0.0, 0.0]
+            "#,
+            "<game>",
+        )
+        .unwrap();
+        let rule = scene.avatar.clone().unwrap();
+        let mut w = scene.world;
+        let mut st = Stepper::new(Plan::for_world(&w), false);
+        let spawn =
+            SystemAction::SpawnAvatar { client: PLAYER, class: rule.class, shape: rule.shape, pos: rule.region_min };
+        let mut out = TickOutput::default();
+        st.step_with(&mut w, &[spawn], &[], &mut out);
+        let avatar = out.spawned[0].1;
+        (w, st, avatar)
+    }
+
+    /// Game logic teleports, re-classes and pushes a body it does not own and spawns one of any
+    /// dynamic class; a player may do none of it (typed `not_allowed`), nor act on another's
+    /// body (`not_owner`).
+    #[test]
+    fn game_logic_acts_on_any_body_and_a_player_may_not() {
+        let (mut w, mut st, avatar) = world();
+        let logic = [
+            Action::Teleport { entity: avatar, position: [5.0, 1.0, 0.0], velocity: Some([0.0, 0.0, 2.0]) },
+            Action::SetClass { entity: avatar, class: "ghost".into() },
+            Action::ApplyImpulse { entity: avatar, impulse: [0.0, 0.0, 0.0] },
+            Action::Spawn {
+                class: "player".into(),
+                shape: ShapeSpec::Sphere { radius_m: 0.5 },
+                position: [-5.0, 0.0, 0.0],
+                velocity: [0.0; 3],
+                owner: None,
+            },
+        ];
+        for a in &logic[..2] {
+            let (reason, detail) = check(&w, PLAYER, std::slice::from_ref(a)).unwrap_err();
+            assert_eq!(reason, RejectReason::NotAllowed, "{a:?}: {detail}");
+        }
+        let stranger = Sender::player(ClientId(2));
+        assert_eq!(check_as(&w, stranger, &logic[2..3]).unwrap_err().0, RejectReason::NotOwner);
+        let wall = Action::SetClass { entity: avatar, class: "wall".into() };
+        let boss = Sender { client: LOGIC, logic: true };
+        assert_eq!(check_as(&w, boss, &[wall]).unwrap_err().0, RejectReason::OutOfRange, "not a static class");
+        assert_eq!(check_as(&w, boss, &logic), Ok(()));
+
+        let input = TickInput { logic: true, ..TickInput::new(LOGIC, 1, logic.to_vec()) };
+        let mut out = TickOutput::default();
+        st.step(&mut w, &[input], &mut out);
+        assert!(out.skipped.is_empty(), "{:?}", out.skipped);
+        let s = w.bodies.slot(avatar).unwrap();
+        assert_eq!(w.bodies.pos[s], DVec3::new(5.0, 1.0, 2.0 / 64.0), "teleported, then moved a tick");
+        assert_eq!(w.config.classes.props[w.bodies.class[s].0 as usize].name, "ghost");
+        assert_eq!(w.bodies.len(), 2, "spawned");
+        // The same input from the same client without the role is skipped at its tick.
+        let forged = TickInput::new(LOGIC, 2, logic[..1].to_vec());
+        let mut out = TickOutput::default();
+        st.step(&mut w, &[forged], &mut out);
+        assert_eq!(out.skipped.len(), 1);
+        assert_eq!(out.skipped[0].reason, RejectReason::NotAllowed);
     }
 }

@@ -355,6 +355,12 @@ impl Bodies {
         self.id.is_empty()
     }
 
+    /// Changes the class of the body in `slot` (game logic's `set_class`; copies the shared
+    /// table once if a snapshot still holds it).
+    pub fn set_class(&mut self, slot: usize, class: ClassId) {
+        Arc::make_mut(&mut self.table).class[slot] = class;
+    }
+
     /// The slot of an entity (binary search: ids are sorted).
     pub fn slot(&self, id: EntityId) -> Option<usize> {
         self.id.binary_search(&id).ok()

@@ -93,15 +93,20 @@ struct Args {
     /// No per-second status line.
     #[arg(long)]
     quiet: bool,
-    /// Users file (TOML, `[[user]] name, password, client`): turns on Zenoh user/password
-    /// authentication and access control, so each user acts, listens and appears only as its own
-    /// client. See README, "Users and access control".
+    /// Users file (TOML, `[[user]] name, password, client`, optional `role = "logic"`): turns on
+    /// Zenoh user/password authentication and access control, so each user acts, listens and
+    /// appears only as its own client. See README, "Users and access control".
     #[arg(long)]
     users: Option<PathBuf>,
     /// Print the Zenoh configuration (access control and dictionary path) a zenohd router needs
     /// to enforce `--users` at the edge, and exit.
     #[arg(long, requires = "users")]
     print_acl: bool,
+    /// A client with the game-logic role (repeatable), beside the users file's `role = "logic"`
+    /// users: its inputs act on any body and may teleport, spawn and change classes
+    /// (PROTOCOL.md, "Game logic"). Without --users, anyone can claim the id: for development.
+    #[arg(long = "logic-client", value_name = "CLIENT")]
+    logic_clients: Vec<u32>,
     /// With --print-acl: where the router's dictionary file (one `name:password` per line) is.
     #[arg(long, default_value = "users.dict")]
     dictionary_path: String,
@@ -342,6 +347,7 @@ fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>, pool:
             max_ticks: args.max_ticks,
             verbose: !args.quiet,
             users: users.clone(),
+            logic_clients: args.logic_clients.iter().map(|&c| impact_protocol::ClientId(c)).collect(),
             record: args.record.as_ref().map(|r| PathBuf::from(r.replace("{world}", scene.name.as_str()))),
             standby: args.standby,
             state: state.clone(),

@@ -43,6 +43,7 @@ pub fn logged_input(i: &TickInput, tick: Tick) -> LoggedInput {
             .iter()
             .map(|r| LoggedRay { action: r.action, view_tick: r.view_tick, clamped: r.clamped, hit: r.hit.clone() })
             .collect(),
+        logic: i.logic,
     }
 }
 
@@ -56,6 +57,7 @@ pub fn tick_input(l: LoggedInput) -> TickInput {
             .map(|r| RewoundRay { action: r.action, view_tick: r.view_tick, clamped: r.clamped, hit: r.hit })
             .collect(),
         logged: true,
+        logic: l.logic,
         ..TickInput::new(l.client, l.seq, l.actions)
     }
 }
@@ -63,7 +65,7 @@ pub fn tick_input(l: LoggedInput) -> TickInput {
 /// An admitted input, not yet confirmed, as a standby that takes over applies it: its rays are
 /// cast again when its tick is simulated (the standby holds the history they look at).
 pub fn pending_input(l: LoggedInput) -> TickInput {
-    TickInput { view_tick: l.view_tick, ..TickInput::new(l.client, l.seq, l.actions) }
+    TickInput { view_tick: l.view_tick, logic: l.logic, ..TickInput::new(l.client, l.seq, l.actions) }
 }
 
 /// A server action in its logged form.

@@ -53,6 +53,9 @@ pub struct RollbackConfig {
     pub selective: bool,
     /// Most inputs held for one tick (a bound on memory whatever clients send).
     pub max_inputs_per_tick: usize,
+    /// The clients with the game-logic role: their inputs act on any body (logged with each
+    /// input, so a follower or a replay needs no copy of this).
+    pub logic_clients: BTreeSet<ClientId>,
 }
 
 impl RollbackConfig {
@@ -65,6 +68,7 @@ impl RollbackConfig {
             self_check_ticks: 0,
             selective: false,
             max_inputs_per_tick: 4096,
+            logic_clients: BTreeSet::new(),
         }
     }
 }
@@ -221,6 +225,11 @@ impl Session {
     /// The settings.
     pub fn config(&self) -> &RollbackConfig {
         &self.cfg
+    }
+
+    /// The clients with the game-logic role from now on ([`RollbackConfig::logic_clients`]).
+    pub fn set_logic_clients(&mut self, clients: impl IntoIterator<Item = ClientId>) {
+        self.cfg.logic_clients = clients.into_iter().collect();
     }
 
     /// Runs the core's parallel stages, re-simulation included, on `pool` (results do not
@@ -384,10 +393,14 @@ impl Session {
             };
             return Err(Refusal::new(RejectReason::Duplicate, detail));
         }
-        input::check(&self.world, input.client, &input.actions)
+        let logic = self.cfg.logic_clients.contains(&input.client);
+        input::check_as(&self.world, input::Sender { client: input.client, logic }, &input.actions)
             .map_err(|(reason, detail)| Refusal::new(reason, detail))?;
-        let entry =
-            TickInput { view_tick: input.rewind_tick(), ..TickInput::new(input.client, input.seq, input.actions) };
+        let entry = TickInput {
+            view_tick: input.rewind_tick(),
+            logic,
+            ..TickInput::new(input.client, input.seq, input.actions)
+        };
         let held = if tick < now {
             &mut self.history.get_mut(tick).expect("ticks in [oldest, now) are in the history").inputs
         } else {

@@ -47,7 +47,11 @@ fn entities(input: &TickInput, frame: &Frame, out: &mut BTreeSet<EntityId>) {
                     }
                 }
             }
-            Action::SpawnProjectile { .. } => {}
+            // Inputs with these take the full re-simulation (see below).
+            Action::SpawnProjectile { .. }
+            | Action::Spawn { .. }
+            | Action::Teleport { .. }
+            | Action::SetClass { .. } => {}
         }
     }
 }
@@ -201,7 +205,18 @@ pub fn resimulate(s: &mut Session, from: Tick, adv: &mut Advance) -> bool {
         }
         for input in &f.inputs {
             // A rewound ray reads a past world the sub-world does not hold: the full path.
-            if !input.rewound.is_empty() || input.actions.iter().any(|a| matches!(a, Action::SpawnProjectile { .. })) {
+            // A spawn adds a body the old run never had, a teleport moves one where its path
+            // never went, a class change alters every rule it meets: no reach holds them.
+            let unbounded = |a: &Action| {
+                matches!(
+                    a,
+                    Action::SpawnProjectile { .. }
+                        | Action::Spawn { .. }
+                        | Action::Teleport { .. }
+                        | Action::SetClass { .. }
+                )
+            };
+            if !input.rewound.is_empty() || input.actions.iter().any(unbounded) {
                 return false;
             }
             if s.fresh.contains(&(input.client, input.seq)) {

@@ -45,6 +45,21 @@ pub struct User {
     pub password: String,
     /// The client id this user acts as.
     pub client: u32,
+    /// What it may do: play (the default) or run the game's logic.
+    #[serde(default)]
+    pub role: Role,
+}
+
+/// A user's role.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Role {
+    /// A player: acts on the bodies it owns, hears what concerns it.
+    #[default]
+    Player,
+    /// The game's logic: acts on any body (teleport, spawn, change class, push, remove), and
+    /// hears every client's answers and events (the shots they fired, what hit them).
+    Logic,
 }
 
 /// Another server or a router of the same deployment: trusted with every impact key.
@@ -120,6 +135,11 @@ impl Users {
         Ok(())
     }
 
+    /// The clients of the users whose role is [`Role::Logic`].
+    pub fn logic_clients(&self) -> impl Iterator<Item = impact_protocol::ClientId> + '_ {
+        self.users.iter().filter(|u| u.role == Role::Logic).map(|u| impact_protocol::ClientId(u.client))
+    }
+
     /// The user that is `client`, if any.
     pub fn for_client(&self, client: u32) -> Option<&User> {
         self.users.iter().find(|u| u.client == client)
@@ -176,8 +196,17 @@ impl Users {
             rules.push(rule(id("presence"), vec![own(keys::PRESENCE, c)], &["liveliness_token"], "ingress"));
             rules.push(rule(id("subscribe"), vec![client_tree(c)], &["declare_subscriber"], "ingress"));
             rules.push(rule(id("receive"), vec![client_tree(c)], &["put"], "egress"));
+            if u.role == Role::Logic {
+                // Every client's tree: the answers to their shots, the events that involve them.
+                let every = vec![format!("impact/{}/*/client/*/**", keys::VERSION)];
+                rules.push(rule(id("logic-subscribe"), every.clone(), &["declare_subscriber"], "ingress"));
+                rules.push(rule(id("logic-receive"), every, &["put"], "egress"));
+            }
             subjects.push(json!({"id": format!("user-{}", u.name), "usernames": [u.name]}));
             let mut own_rules: Vec<String> = ["input", "presence", "subscribe", "receive"].map(id).to_vec();
+            if u.role == Role::Logic {
+                own_rules.extend(["logic-subscribe", "logic-receive"].map(id));
+            }
             own_rules.extend(shared.iter().map(|s| s.to_string()));
             policies.push(json!({"rules": own_rules, "subjects": [format!("user-{}", u.name)]}));
         }
@@ -325,5 +354,30 @@ mod tests {
         assert!(!path.exists(), "the dictionary is removed");
         let router: serde_json::Value = serde_json::from_str(&u.router_config("/etc/impact/users.dict")).unwrap();
         assert_eq!(router["access_control"], acl);
+    }
+
+    /// A `role = "logic"` user is a logic client, and its policy (alone) reaches every client's
+    /// keys; zenoh accepts the configuration.
+    #[test]
+    fn a_logic_user_hears_every_client() {
+        let text = format!("{FILE}\n[[user]]\nname = \"rules\"\npassword = \"p\"\nclient = 900\nrole = \"logic\"\n");
+        let u = Users::parse(&text).unwrap();
+        assert_eq!(u.logic_clients().collect::<Vec<_>>(), vec![impact_protocol::ClientId(900)]);
+        let acl = u.acl();
+        let every = format!("impact/{}/*/client/*/**", keys::VERSION);
+        let rules = acl["rules"].as_array().unwrap();
+        let reaching: Vec<&str> = rules
+            .iter()
+            .filter(|r| r["key_exprs"].as_array().unwrap().iter().any(|k| k == &every))
+            .map(|r| r["id"].as_str().unwrap())
+            .collect();
+        assert_eq!(reaching, vec!["client-900-logic-subscribe", "client-900-logic-receive"]);
+        let policies = acl["policies"].as_array().unwrap();
+        let with =
+            |id: &str| policies.iter().filter(|p| p["rules"].as_array().unwrap().iter().any(|r| r == id)).count();
+        assert_eq!(with("client-900-logic-subscribe"), 1);
+        let mut c = zenoh::Config::default();
+        u.apply(&mut c).expect("zenoh accepts it");
+        assert!(Users::parse(&text.replace("\"logic\"", "\"admin\"")).is_err(), "an unknown role is refused");
     }
 }

@@ -59,6 +59,10 @@ pub struct ServerOptions {
     pub verbose: bool,
     /// Authenticated users and access control (`--users`); `None` lets anyone in.
     pub users: Option<super::auth::Users>,
+    /// Clients with the game-logic role beside the users file's `role = "logic"` users
+    /// (`--logic-client`): their inputs act on any body and may teleport, spawn and change
+    /// classes.
+    pub logic_clients: Vec<impact_protocol::ClientId>,
     /// Write the input log to this file (`--record`): a header line, then one JSON
     /// [`LogTick`](impact_protocol::LogTick) per confirmed tick.
     pub record: Option<PathBuf>,
@@ -89,6 +93,7 @@ impl Default for ServerOptions {
             max_ticks: None,
             verbose: false,
             users: None,
+            logic_clients: Vec::new(),
             record: None,
             standby: false,
             state: StateOptions::default(),

@@ -79,6 +79,10 @@ impl TickLoop {
         let w = scene.world;
         let mut rb = opts.rollback.clone().unwrap_or_else(|| RollbackConfig::for_world(&w));
         rb.window_ticks = rb.window_ticks.max(1);
+        rb.logic_clients.extend(opts.logic_clients.iter().copied());
+        if let Some(users) = &opts.users {
+            rb.logic_clients.extend(users.logic_clients());
+        }
         let plan = Plan::for_world(&w);
         let scene_hash = w.scene_hash();
         let mut session = Session::new(w, plan, rb);
@@ -421,6 +425,7 @@ impl TickLoop {
                 view_tick: input.rewind_tick(),
                 actions: input.actions.clone(),
                 rewound: Vec::new(),
+                logic: self.session.config().logic_clients.contains(&client),
             };
             match self.session.submit(input) {
                 Ok(applied) => {
@@ -631,13 +636,15 @@ impl TickLoop {
         self.summary.clients += 1;
         let state = self.new_client(client, true, None, self.opts.encoding);
         let had = self.clients.insert(client, state).is_some();
+        // Game logic plays no body of its own.
+        let logic = self.session.config().logic_clients.contains(&client);
         match (&self.avatar, had) {
-            (Some(rule), _) => {
+            (Some(rule), _) if !logic => {
                 let pos = avatar_position(rule, client.0, now.0);
                 let (class, shape) = (rule.class, rule.shape.clone());
                 self.submit_system(SystemAction::SpawnAvatar { client, class, shape, pos });
             }
-            (None, _) => self.welcome(client, None),
+            _ => self.welcome(client, None),
         }
     }
 
