@@ -46,6 +46,10 @@ pub enum Behaviour {
     Shooter,
     /// A third of each.
     Mixed,
+    /// Play a deathmatch: head for the nearest other player drawn from the state stream (with
+    /// `--state` or `--predict`), fire at it when within 40 m, jump now and then; wander while
+    /// nobody is in sight.
+    Fighter,
 }
 
 /// Load test settings.
@@ -264,7 +268,7 @@ fn action(behaviour: Behaviour, entity: EntityId, rng: &mut Rng, t: f64) -> Acti
                 velocity: [goal[0] * 0.3 + jitter[0], (goal[1] - 10.0) * 0.3, goal[2] * 0.3 + jitter[2]],
             }
         }
-        Behaviour::Shooter | Behaviour::Mixed => {
+        Behaviour::Shooter | Behaviour::Mixed | Behaviour::Fighter => {
             if rng.unit() < 0.7 {
                 let d = dir(rng);
                 let o = [40.0 * (rng.unit() - 0.5), 2.0 + 15.0 * rng.unit(), 40.0 * (rng.unit() - 0.5)];
@@ -275,6 +279,30 @@ fn action(behaviour: Behaviour, entity: EntityId, rng: &mut Rng, t: f64) -> Acti
             }
         }
     }
+}
+
+/// A fighter's next action, if another player is in sight: fire at the nearest (within 40 m,
+/// half the time) or head for it. Players are the bodies of the own avatar's class that a
+/// client owns, as the state stream drew them.
+fn fight(s: &Session, me: EntityId, now: Instant, rng: &mut Rng) -> Option<Action> {
+    let remote = s.remote()?;
+    let mine = remote.info(me)?;
+    let mut drawn = Vec::new();
+    s.draw_remote(now, &mut drawn);
+    let at = drawn.iter().find(|b| b.entity == me)?.position;
+    let (target, d2) = drawn
+        .iter()
+        .filter(|b| b.entity != me)
+        .filter(|b| remote.info(b.entity).is_some_and(|i| i.owner.is_some() && i.class == mine.class))
+        .map(|b| (b, (0..3).map(|k| (b.position[k] - at[k]).powi(2)).sum::<f64>()))
+        .filter(|(_, d2)| *d2 > 1e-6)
+        .min_by(|x, y| x.1.total_cmp(&y.1))?;
+    let d = d2.sqrt();
+    let toward = [0, 1, 2].map(|k| (target.position[k] - at[k]) / d);
+    if d < 40.0 && rng.unit() < 0.5 {
+        return Some(Action::FireRay { shooter: me, origin: at, direction: toward, max_distance_m: 60.0 });
+    }
+    Some(Action::SetVelocity { entity: me, velocity: toward.map(|x| x * 5.0) })
 }
 
 /// The sessions the clients share, or with `users` one per client, authenticated as its user.
@@ -750,7 +778,12 @@ impl Run<'_> {
             if let (Some(entity), true) = (s.avatar(), c.playing_since.is_some() && now < self.load_end) {
                 if c.next_action <= now {
                     c.next_action += self.period;
-                    let mut a = action(c.behaviour, entity, &mut self.rng, t);
+                    let aimed =
+                        if c.behaviour == Behaviour::Fighter { fight(s, entity, now, &mut self.rng) } else { None };
+                    let mut a = aimed.unwrap_or_else(|| {
+                        let wander = if c.behaviour == Behaviour::Fighter { Behaviour::Wander } else { c.behaviour };
+                        action(wander, entity, &mut self.rng, t)
+                    });
                     if let Some(walk) = self.walk_mps {
                         a = intent(a, walk, &mut self.rng);
                     }
