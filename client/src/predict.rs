@@ -118,10 +118,12 @@ struct Snap {
     asleep: bool,
     still: u16,
     touching: Vec<Touch>,
+    class: ClassId,
 }
 
 impl Snap {
-    fn of(s: &AvatarState, tick: Tick) -> Snap {
+    /// The server's state; its class, if it names one of the `classes` there are, else `known`.
+    fn of(s: &AvatarState, tick: Tick, known: ClassId, classes: usize) -> Snap {
         let me = s.entity;
         let mut touching: Vec<Touch> = s
             .touching
@@ -143,6 +145,7 @@ impl Snap {
             asleep: s.asleep,
             still: s.still_ticks,
             touching,
+            class: s.class.filter(|c| usize::from(*c) < classes).map_or(known, ClassId),
         }
     }
 }
@@ -292,6 +295,7 @@ impl Predictor {
             asleep: b.asleep[0],
             still: b.still_ticks[0],
             touching: w.touching.clone(),
+            class: b.class[0],
         }
     }
 
@@ -304,6 +308,10 @@ impl Predictor {
         w.bodies.asleep[0] = s.asleep;
         w.bodies.still_ticks[0] = s.still;
         w.touching.clone_from(&s.touching);
+        if w.bodies.class[0] != s.class {
+            // Game logic changed it (a ghost, a pickup taken): the rules it moves by change too.
+            w.bodies.set_class(0, s.class);
+        }
         while self.history.back().is_some_and(|h| h.tick >= s.tick) {
             self.history.pop_back();
         }
@@ -333,10 +341,12 @@ impl Predictor {
             self.avatar = Some(s.entity);
             self.history.clear();
             self.offset = DVec3::ZERO;
-            self.set(Snap::of(s, tick));
+            let classes = self.world.config.classes.props.len();
+            self.set(Snap::of(s, tick, self.class, classes));
             return Reconciled::Taken;
         }
-        let theirs = Snap::of(s, tick);
+        let classes = self.world.config.classes.props.len();
+        let theirs = Snap::of(s, tick, self.world.bodies.class[0], classes);
         let predicted = self.history.iter().find(|h| h.tick == tick);
         let present = self.world.tick;
         let before = self.position();
@@ -507,6 +517,7 @@ mod tests {
                 asleep: b.asleep[i],
                 still_ticks: b.still_ticks[i],
                 touching,
+                class: Some(b.class[i].0),
             }
         }
     }
@@ -549,6 +560,38 @@ mod tests {
             vec![Action::Move { entity: avatar, direction: [a.cos(), 0.0, 0.7 * a.sin()], jump: k % 40 == 39 }]
         };
         predicts_exactly(&scene, &scene.rules(), intent);
+    }
+
+    /// Game logic turns the avatar into a ghost (no gravity, through everything) mid-walk: the
+    /// state after says so (`class`), the predictor takes it, and predicts the ghost exactly.
+    #[test]
+    fn a_class_change_by_game_logic_is_followed() {
+        let ghost = "[[class]]\n        name = \"ghost\"\n        gravity = false\n\n        [[class]]\n        name = \"ground\"";
+        let text = SCENE.replacen("[[class]]\n        name = \"ground\"", ghost, 1);
+        let scene = Scene::parse(&text, "<yard>").unwrap();
+        let mut server = Server::new(&scene);
+        let mut p = Predictor::new(&scene.rules(), ME, PredictConfig::default()).unwrap();
+        p.authoritative(server.world.tick, &server.state());
+        let (mut exact, mut other) = (0, 0);
+        for k in 0..240u32 {
+            let tick = server.world.tick;
+            let actions = walk(server.avatar, k);
+            p.input(tick, k + 1, &actions);
+            p.advance_to(Tick(tick.0 + 2));
+            let mut inputs = vec![TickInput::new(ME, k + 1, actions)];
+            if k == 120 {
+                let boo = Action::SetClass { entity: server.avatar, class: "ghost".into() };
+                inputs.push(TickInput { logic: true, ..TickInput::new(ClientId(900), 1, vec![boo]) });
+            }
+            server.step(&inputs);
+            if k % 3 == 2 {
+                match p.authoritative(server.world.tick, &server.state()) {
+                    Reconciled::Exact => exact += 1,
+                    _ => other += 1,
+                }
+            }
+        }
+        assert_eq!(other, 1, "only the state that showed the change: {exact} exact");
     }
 
     fn predicts_exactly(scene: &Scene, rules: &SceneRules, act: impl Fn(EntityId, u32) -> Vec<Action>) {

@@ -117,6 +117,10 @@ pub struct AvatarState {
     /// Its contacts with static geometry and terrain at the end of the tick before (the resting
     /// contact solver starts from them), by ascending other entity.
     pub touching: Vec<AvatarTouch>,
+    /// Its class id (an index into `query/scene`'s classes): game logic may change it (nil from
+    /// a server that does not say).
+    #[serde(default)]
+    pub class: Option<u16>,
 }
 
 /// One resting contact of an avatar with static geometry (see [`AvatarState::touching`]).

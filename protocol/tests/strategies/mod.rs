@@ -327,6 +327,7 @@ fn state_frame() -> impl Strategy<Value = ServerMessage> {
                             friction_impulse: [c[2], 0.0, -c[0]],
                         })
                         .collect(),
+                    class: (frame % 2 == 0).then_some((frame % 5) as u16),
                 }),
             })
         })

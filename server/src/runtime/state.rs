@@ -554,6 +554,7 @@ fn avatar_state(cap: &Capture, avatar: EntityId) -> Option<AvatarState> {
         asleep: cap.asleep[i],
         still_ticks: cap.still[i],
         touching,
+        class: Some(cap.table.class[i].0),
     })
 }
 
