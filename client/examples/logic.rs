@@ -53,9 +53,16 @@ const DAMAGE: i32 = 25;
 const RESPAWN: Duration = Duration::from_secs(3);
 /// Where ghosts wait, out of everyone's way.
 const LIMBO: [f64; 3] = [0.0, 60.0, 0.0];
-/// Where players come back, in turn.
-const SPAWNS: [[f64; 3]; 5] =
-    [[-15.0, 4.0, -15.0], [15.0, 4.0, -15.0], [-15.0, 4.0, 15.0], [15.0, 4.0, 15.0], [0.0, 4.0, 5.0]];
+/// The `k`th spawn point: 64 spots 8 m apart over the field (clear of the wall at z = -10), and
+/// for the 65th player on, 0.8 m beside them, so that a whole match starting at once (every
+/// player put back in one tick) puts no two players inside each other.
+fn spawn_point(k: usize) -> [f64; 3] {
+    let (spot, beside) = (k % 64, (k / 64) as f64);
+    let (x, z) = ((spot % 8) as f64 * 8.0 - 28.0, (spot / 8) as f64 * 8.0 - 28.0);
+    // The row at z = -12 moves 4 m away from the wall.
+    let z = if (z + 10.0).abs() < 3.0 { z - 4.0 } else { z };
+    [x + 0.8 * (beside % 8.0), 4.0, z]
+}
 
 /// A player as the rules see it.
 struct Player {
@@ -185,7 +192,7 @@ fn run(a: &Args) -> Result<(), Box<dyn std::error::Error>> {
                 if new_match {
                     (p.kills, p.deaths) = (0, 0);
                 }
-                let at = SPAWNS[next_spawn % SPAWNS.len()];
+                let at = spawn_point(next_spawn);
                 next_spawn += 1;
                 let out = vec![
                     Action::Teleport { entity: p.avatar, position: at, velocity: Some([0.0; 3]) },

@@ -405,7 +405,10 @@ impl TickLoop {
             let state = self.clients.get_mut(&client).expect("inserted above");
             let ack_key = state.ack_key.clone();
             state.encoding = encoding;
-            if state.tokens < 1.0 {
+            // Game logic speaks for every player (a match starting puts them all back at once):
+            // the ingress queue and the inputs held per tick bound it, not the per-player rate.
+            let logic = self.session.config().logic_clients.contains(&client);
+            if state.tokens < 1.0 && !logic {
                 self.count_reject(RejectReason::RateLimited);
                 let msg = reject(
                     client,
@@ -416,7 +419,7 @@ impl TickLoop {
                 self.put(ack_key, &msg, encoding);
                 continue;
             }
-            state.tokens -= 1.0;
+            state.tokens = (state.tokens - 1.0).max(0.0);
             let view = input.view_tick.unwrap_or(tick);
             let logged = LoggedInput {
                 client,
