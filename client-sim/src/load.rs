@@ -243,7 +243,7 @@ fn seqs(msg: &ClientMessage) -> Vec<u32> {
     match msg {
         ClientMessage::Input(i) => vec![i.seq],
         ClientMessage::Inputs(b) => b.inputs.iter().map(|i| i.seq).collect(),
-        ClientMessage::Ping(_) | ClientMessage::FullFrame(_) => Vec::new(),
+        ClientMessage::Ping(_) | ClientMessage::FullFrame(_) | ClientMessage::World(_) => Vec::new(),
     }
 }
 
@@ -328,8 +328,9 @@ fn open_sessions(cfg: &LoadConfig) -> anyhow::Result<Vec<zenoh::Session>> {
 /// counted), about a second of 1,000 busy clients.
 const INBOX_MAX: usize = 1 << 20;
 
-/// What the callbacks hand the run loop, with when each arrived.
-type Inbox = Arc<Mutex<Vec<(Instant, Inbound)>>>;
+/// What the callbacks hand the run loop, with when each arrived and the wiring's generation
+/// (the world it came from: one that closed is counted no more).
+type Inbox = Arc<Mutex<Vec<(Instant, u32, Inbound)>>>;
 
 /// A run's Zenoh side: the sessions, and the subscriptions and presence tokens that live as long
 /// as the run, with what their callbacks fill.
@@ -343,6 +344,8 @@ struct Wiring {
     state_frames: Arc<AtomicU64>,
     subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
     tokens: Vec<zenoh::liveliness::LivelinessToken>,
+    /// One more for each world the clients moved to.
+    generation: u32,
 }
 
 impl Wiring {
@@ -357,22 +360,44 @@ impl Wiring {
             state_frames: Arc::new(AtomicU64::new(0)),
             subscribers: Vec::new(),
             tokens: Vec::new(),
+            generation: 0,
         };
+        w.subscribe(cfg, &cfg.world, clients)?;
+        Ok(w)
+    }
+
+    /// Subscribes each client to its answers, events and state stream in `world`, and the run
+    /// to its stats.
+    fn subscribe(&mut self, cfg: &LoadConfig, world: &WorldId, clients: &[Client]) -> anyhow::Result<()> {
         for (k, c) in clients.iter().enumerate() {
-            w.subscribe_client(cfg, k, c)?;
+            self.subscribe_client(cfg, world, k, c)?;
         }
-        let inbox = w.inbox.clone();
-        let stats = w.sessions[0]
-            .declare_subscriber(keys::STATS.key(&cfg.world, None))
+        let (inbox, generation) = (self.inbox.clone(), self.generation);
+        let stats = self.sessions[0]
+            .declare_subscriber(keys::STATS.key(world, None))
             .callback(move |sample| {
                 if let Ok(ServerMessage::Stats(s)) = crate::net::decode_server(&sample) {
-                    inbox.lock().unwrap_or_else(|e| e.into_inner()).push((Instant::now(), Inbound::Stats(s)));
+                    inbox.lock().unwrap_or_else(|e| e.into_inner()).push((
+                        Instant::now(),
+                        generation,
+                        Inbound::Stats(s),
+                    ));
                 }
             })
             .wait()
             .map_err(|e| anyhow::anyhow!("subscribing: {e}"))?;
-        w.subscribers.push(stats);
-        Ok(w)
+        self.subscribers.push(stats);
+        Ok(())
+    }
+
+    /// Moves every client to `world` (the one before closed): its subscriptions and presence
+    /// there, on the same sessions.
+    fn rewire(&mut self, cfg: &LoadConfig, world: &WorldId, clients: &[Client]) -> anyhow::Result<()> {
+        self.tokens.clear();
+        self.subscribers.clear();
+        self.generation += 1;
+        self.subscribe(cfg, world, clients)?;
+        self.declare_presence(world, clients)
     }
 
     /// The session client `k` shares.
@@ -380,19 +405,19 @@ impl Wiring {
         &self.sessions[k % self.sessions.len()]
     }
 
-    fn subscribe_client(&mut self, cfg: &LoadConfig, k: usize, c: &Client) -> anyhow::Result<()> {
+    fn subscribe_client(&mut self, cfg: &LoadConfig, world: &WorldId, k: usize, c: &Client) -> anyhow::Result<()> {
         let mut decoded = vec![(keys::CLIENT_ACK, false), (keys::CLIENT_EVENTS, false)];
         // A game client reads its state stream; the others (with `state`) only count its bytes.
         if c.game {
             decoded.push((keys::CLIENT_STATE, true));
         }
         for (pattern, state) in decoded {
-            let inbox = self.inbox.clone();
+            let (inbox, generation) = (self.inbox.clone(), self.generation);
             let dropped = self.inbox_dropped.clone();
             let counts = state.then(|| (self.state_bytes.clone(), self.state_frames.clone()));
             let sub = self
                 .session(k)
-                .declare_subscriber(pattern.key(&cfg.world, Some(c.id)))
+                .declare_subscriber(pattern.key(world, Some(c.id)))
                 .callback(move |sample| {
                     if let Some((bytes, frames)) = &counts {
                         bytes.fetch_add(sample.payload().len() as u64, Relaxed);
@@ -404,7 +429,7 @@ impl Wiring {
                     };
                     let mut q = inbox.lock().unwrap_or_else(|e| e.into_inner());
                     if q.len() < INBOX_MAX {
-                        q.push((Instant::now(), item));
+                        q.push((Instant::now(), generation, item));
                     } else {
                         dropped.fetch_add(1, Relaxed);
                     }
@@ -417,7 +442,7 @@ impl Wiring {
             let (bytes, frames) = (self.state_bytes.clone(), self.state_frames.clone());
             let sub = self
                 .session(k)
-                .declare_subscriber(keys::CLIENT_STATE.key(&cfg.world, Some(c.id)))
+                .declare_subscriber(keys::CLIENT_STATE.key(world, Some(c.id)))
                 .callback(move |sample| {
                     bytes.fetch_add(sample.payload().len() as u64, Relaxed);
                     frames.fetch_add(1, Relaxed);
@@ -431,12 +456,12 @@ impl Wiring {
 
     /// Declares every client's presence: last, so every subscription is in place when the
     /// welcome comes.
-    fn declare_presence(&mut self, cfg: &LoadConfig, clients: &[Client]) -> anyhow::Result<()> {
+    fn declare_presence(&mut self, world: &WorldId, clients: &[Client]) -> anyhow::Result<()> {
         for (k, c) in clients.iter().enumerate() {
             let t = self
                 .session(k)
                 .liveliness()
-                .declare_token(keys::PRESENCE.key(&cfg.world, Some(c.id)))
+                .declare_token(keys::PRESENCE.key(world, Some(c.id)))
                 .wait()
                 .map_err(|e| anyhow::anyhow!("presence token: {e}"))?;
             self.tokens.push(t);
@@ -497,12 +522,22 @@ struct Run<'a> {
     next_check: Instant,
     /// Remote bodies as drawn minus as the server had them, m, and whether each was steady.
     interpolation: Vec<(f64, bool)>,
+    /// The world played now: `cfg.world`, or the one a closed world named next.
+    world: WorldId,
+    /// The sessions of worlds that closed (and whether each was a game client's): their
+    /// figures count in the report.
+    retired: Vec<(bool, Session)>,
 }
 
 /// Which clients are game clients: `predict` of them, spread evenly over the ids (so over the
 /// behaviours too).
 fn is_game(k: usize, clients: u32, predict: u32) -> bool {
     (k as u64 * u64::from(predict)) % u64::from(clients.max(1)) < u64::from(predict)
+}
+
+/// A client's session (predicting once [`predict`] gives it the rules).
+fn new_session(cfg: &LoadConfig, id: ClientId) -> Session {
+    Session::new(SessionConfig { ahead: cfg.timing == Timing::Ahead, predict: None, ..SessionConfig::new(id) })
 }
 
 /// The clients, each a session (a game client predicts once [`predict`] gave it the rules).
@@ -515,8 +550,7 @@ fn clients(cfg: &LoadConfig, start: Instant) -> anyhow::Result<Vec<Client>> {
             b => b,
         };
         let game = is_game(k, cfg.clients, cfg.predict);
-        let session =
-            Session::new(SessionConfig { ahead: cfg.timing == Timing::Ahead, predict: None, ..SessionConfig::new(id) });
+        let session = new_session(cfg, id);
         out.push(Client {
             id,
             behaviour,
@@ -543,13 +577,14 @@ fn clients(cfg: &LoadConfig, start: Instant) -> anyhow::Result<Vec<Client>> {
 /// are taken not to be.
 fn scene_rules(
     cfg: &LoadConfig,
+    world: &WorldId,
     zs: &zenoh::Session,
     clients: &[Client],
 ) -> anyhow::Result<Option<impact_core::scene::SceneRules>> {
     if let Some(r) = &cfg.scene {
         return Ok(Some(r.clone()));
     }
-    let asked = impact_client::transport::query_scene(zs, &cfg.world, Duration::from_secs(10))
+    let asked = impact_client::transport::query_scene(zs, world, Duration::from_secs(10))
         .map_err(anyhow::Error::from)
         .and_then(|d| Ok(impact_core::scene::SceneRules::from_description(&d)?));
     match asked {
@@ -590,9 +625,9 @@ fn intent(a: Action, walk_mps: f64, rng: &mut Rng) -> Action {
 pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
     let mut clients = clients(cfg, Instant::now())?;
     let mut wiring = Wiring::connect(cfg, &clients)?;
-    let rules = scene_rules(cfg, &wiring.sessions[0], &clients)?;
+    let rules = scene_rules(cfg, &cfg.world, &wiring.sessions[0], &clients)?;
     predict(rules.as_ref(), &mut clients)?;
-    wiring.declare_presence(cfg, &clients)?;
+    wiring.declare_presence(&cfg.world, &clients)?;
     let mut run = Run::new(cfg, clients, wiring.sessions.len())?;
     run.walk_mps = walk_speed(rules.as_ref());
     // State streams are counted over the load alone.
@@ -610,7 +645,10 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
         if now >= run.load_end && state_at_end.is_none() {
             state_at_end = Some(wiring.state_counts());
         }
-        run.downlink(&wiring.inbox, now);
+        run.downlink(&wiring, now);
+        if let Some(next) = run.closed_to() {
+            run.follow(&mut wiring, next, now)?;
+        }
         run.play(now);
         run.check(&wiring, now);
         run.uplink(&wiring, now);
@@ -653,6 +691,8 @@ impl Run<'_> {
             cfg,
             walk_mps: None,
             input_keys: clients.iter().map(|c| keys::INPUT.key(&cfg.world, Some(c.id))).collect(),
+            world: cfg.world.clone(),
+            retired: Vec::new(),
             clients,
             rng: Rng::new(cfg.seed),
             up: DelayLine::new(1 << 20),
@@ -678,10 +718,12 @@ impl Run<'_> {
 
     /// Received messages enter the downlink delay line; due ones reach their client (none while
     /// a partition holds the line).
-    fn downlink(&mut self, inbox: &Inbox, now: Instant) {
-        let arrived = std::mem::take(&mut *inbox.lock().unwrap_or_else(|e| e.into_inner()));
-        for (at, m) in arrived {
-            self.down.send(at, &self.cfg.downlink, &mut self.rng, m);
+    fn downlink(&mut self, wiring: &Wiring, now: Instant) {
+        let arrived = std::mem::take(&mut *wiring.inbox.lock().unwrap_or_else(|e| e.into_inner()));
+        for (at, generation, m) in arrived {
+            if generation == wiring.generation {
+                self.down.send(at, &self.cfg.downlink, &mut self.rng, m);
+            }
         }
         if let Some(end) = self.cfg.faults.partition_end(now.saturating_duration_since(self.load_start)) {
             // Nothing crosses either way until it ends; what was sent meanwhile comes after.
@@ -849,7 +891,7 @@ impl Run<'_> {
                 v
             })
             .collect();
-        let key = format!("{}?tick={}", keys::QUERY_STATE.key(&self.cfg.world, None), tick.0);
+        let key = format!("{}?tick={}", keys::QUERY_STATE.key(&self.world, None), tick.0);
         if let Ok(replies) = wiring.sessions[0].get(key).timeout(Duration::from_secs(2)).wait() {
             self.checks.push(Check { tick, drawn, replies });
         }
@@ -876,6 +918,50 @@ impl Run<'_> {
         }
     }
 
+    /// The world the clients' world closed to, once one of them was told (a match that ended
+    /// and named the next).
+    fn closed_to(&self) -> Option<WorldId> {
+        self.clients.iter().find_map(|c| c.session.closed().and_then(|n| n.next.clone())).filter(|n| *n != self.world)
+    }
+
+    /// Every client follows its world to `next`, as a game would (a new session there): the
+    /// subscriptions and presence move, in-flight messages of the closed world are dropped,
+    /// inputs it never answered are void (counted apart), and the game clients predict with the
+    /// new world's scene.
+    fn follow(&mut self, wiring: &mut Wiring, next: WorldId, now: Instant) -> anyhow::Result<()> {
+        let cfg = self.cfg;
+        for c in &mut self.clients {
+            self.r.inputs_void_at_close += c.owed.values().map(|&n| u64::from(n)).sum::<u64>();
+            c.owed.clear();
+            c.acked.clear();
+            (c.delivered, c.welcomed, c.playing_since) = (0, false, None);
+            let old = std::mem::replace(&mut c.session, new_session(cfg, c.id));
+            self.retired.push((c.game, old));
+        }
+        self.up = DelayLine::new(1 << 20);
+        self.down = DelayLine::new(1 << 21);
+        self.checks.clear();
+        self.input_keys = self.clients.iter().map(|c| keys::INPUT.key(&next, Some(c.id))).collect();
+        let rules = scene_rules(cfg, &next, &wiring.sessions[0], &self.clients)?;
+        predict(rules.as_ref(), &mut self.clients)?;
+        self.walk_mps = walk_speed(rules.as_ref());
+        wiring.rewire(cfg, &next, &self.clients)?;
+        if cfg.progress {
+            eprintln!("\n  world {} closed: the players follow to {next}", self.world);
+        }
+        self.r.worlds_followed += 1;
+        // Welcomed counts the clients welcomed in the world played now.
+        self.r.clients_welcomed = 0;
+        self.world = next;
+        self.next_check = now + CHECK_EVERY;
+        Ok(())
+    }
+
+    /// Every session the run had: the clients' now and those of worlds that closed.
+    fn sessions(&self) -> impl Iterator<Item = &Session> {
+        self.clients.iter().map(|c| &c.session).chain(self.retired.iter().map(|r| &r.1))
+    }
+
     fn progress_line(&self) -> String {
         let r = &self.r;
         format!(
@@ -886,18 +972,18 @@ impl Run<'_> {
             r.inputs_sent,
             r.acks,
             self.latency.value_at_quantile(0.99) as f64 / 1000.0,
-            self.clients.iter().map(|c| c.session.stats().corrections).sum::<u64>(),
-            self.clients.iter().map(|c| c.session.events().matched).sum::<u64>(),
-            self.clients.iter().map(|c| c.session.events().mismatched).sum::<u64>()
+            self.sessions().map(|s| s.stats().corrections).sum::<u64>(),
+            self.sessions().map(|s| s.events().matched).sum::<u64>(),
+            self.sessions().map(|s| s.events().mismatched).sum::<u64>()
         )
     }
 
     /// The report: what was counted, with the quantiles, rates and per-client figures drawn from
     /// it. `state` is the state streams' (bytes, frames) at the end of the load.
-    fn report(self, state: (u64, u64)) -> Report {
+    fn report(mut self, state: (u64, u64)) -> Report {
         let cfg = self.cfg;
+        let mut r = std::mem::take(&mut self.r);
         let (latency, depth, server_ticks, clients) = (&self.latency, &self.depth, &self.server_ticks, &self.clients);
-        let mut r = self.r;
         let secs = cfg.duration.as_secs_f64().max(1e-9);
         r.inputs_lost_in_network = r.inputs_sent.saturating_sub(r.inputs_delivered);
         r.messages_lost_in_network = self.up.lost;
@@ -905,8 +991,7 @@ impl Run<'_> {
         r.latency_ms_p50 = latency.value_at_quantile(0.5) as f64 / 1000.0;
         r.latency_ms_p99 = latency.value_at_quantile(0.99) as f64 / 1000.0;
         r.latency_ms_max = latency.max() as f64 / 1000.0;
-        for c in clients {
-            let s = c.session.stats();
+        for s in self.sessions().map(Session::stats) {
             r.events_received += s.events;
             r.corrections += s.corrections;
             r.clock_resyncs += s.clock_resyncs;
@@ -955,9 +1040,11 @@ impl Run<'_> {
         r.margin_ticks_p99 = all.quantile(0.99);
         r.rollbacks_caused = all.late();
         r.rollbacks_caused_per_s = r.rollbacks_caused as f64 / secs;
-        r.views_matched = clients.iter().map(|c| c.session.events().matched).sum();
-        r.views_mismatched = clients.iter().map(|c| c.session.events().mismatched).sum();
-        r.prediction = crate::report::Prediction::over(clients.iter().filter(|c| c.game).map(|c| &c.session));
+        r.views_matched = self.sessions().map(|s| s.events().matched).sum();
+        r.views_mismatched = self.sessions().map(|s| s.events().mismatched).sum();
+        let retired = self.retired.iter().filter(|r| r.0).map(|r| &r.1);
+        r.prediction =
+            crate::report::Prediction::over(clients.iter().filter(|c| c.game).map(|c| &c.session).chain(retired));
         let p = &mut r.prediction;
         let mut all: Vec<f64> = self.interpolation.iter().map(|x| x.0).collect();
         let errors =

@@ -33,6 +33,11 @@ pub struct Report {
     pub rejects: BTreeMap<String, u64>,
     /// Inputs delivered but neither acked nor rejected (should be 0 once settled).
     pub inputs_unanswered: u64,
+    /// Inputs a world that closed never answered (void with it: PROTOCOL.md, "Worlds at run
+    /// time").
+    pub inputs_void_at_close: u64,
+    /// Times the players followed a closed world to the next one game logic named.
+    pub worlds_followed: u32,
     /// Messages delivered a second time (the fault `duplicate`).
     pub inputs_duplicated: u64,
     /// Answers for which no delivery was owed, and second acks of one seq (an input applied
@@ -135,6 +140,8 @@ pub struct Prediction {
     pub prediction_states: u64,
     /// ...of which equal to the bit.
     pub prediction_exact: u64,
+    /// States that named a teleport by game logic: taken as a jump, not compared.
+    pub prediction_teleports: u64,
     /// The share of compared states that were not.
     pub prediction_mispredicted_share: Option<f64>,
     /// Mispredictions by cause (`other_body`, `input_late`, `unexplained`:
@@ -191,6 +198,7 @@ impl Prediction {
             let st = s.prediction();
             p.prediction_states += st.compared;
             p.prediction_exact += st.exact;
+            p.prediction_teleports += st.teleported;
             for (cause, n) in &st.causes {
                 *p.prediction_causes.entry(cause.to_string()).or_insert(0) += n;
             }
@@ -239,6 +247,13 @@ impl std::fmt::Display for Report {
             "  inputs   sent {} ({} copies again) | lost in the network {} ({} messages) | delivered {} ({} twice) | acked {} ({} acks lost, told by the next) | unanswered {} | answered unexpectedly {}",
             self.inputs_sent, self.input_copies_sent, self.inputs_lost_in_network, self.messages_lost_in_network, self.inputs_delivered, self.inputs_duplicated, self.acks, self.acks_recovered, self.inputs_unanswered, self.answers_unexpected
         )?;
+        if self.worlds_followed > 0 {
+            writeln!(
+                f,
+                "  worlds   followed {} closed worlds to the next | inputs void at a close {}",
+                self.worlds_followed, self.inputs_void_at_close
+            )?;
+        }
         let rejects: Vec<String> = self.rejects.iter().map(|(k, v)| format!("{k} {v}")).collect();
         writeln!(f, "  rejects  {}", if rejects.is_empty() { "none".into() } else { rejects.join(", ") })?;
         writeln!(
@@ -292,43 +307,7 @@ impl std::fmt::Display for Report {
             pct(self.late_share_steady)
         )?;
         writeln!(f, "  views    {} confirmed ticks matched, {} differed", self.views_matched, self.views_mismatched)?;
-        let p = &self.prediction;
-        if p.predicting_clients > 0 {
-            let m = |x: Option<f64>| x.map_or("-".to_string(), |x| format!("{:.3} m", x));
-            let mm = |x: Option<f64>| x.map_or("-".to_string(), |x| format!("{:.3} mm", x * 1e3));
-            let causes: Vec<String> = p.prediction_causes.iter().map(|(k, v)| format!("{k} {v}")).collect();
-            writeln!(
-                f,
-                "  predict  {} clients ({} stopped) | {} states, {} exact, {} mispredicted ({}) | error p50 {} p99 {} max {}",
-                p.predicting_clients,
-                p.prediction_stopped,
-                p.prediction_states,
-                p.prediction_exact,
-                pct(p.prediction_mispredicted_share),
-                if causes.is_empty() { "none".into() } else { causes.join(", ") },
-                m(p.prediction_error_m_p50),
-                m(p.prediction_error_m_p99),
-                m(p.prediction_error_m_max),
-            )?;
-            writeln!(
-                f,
-                "           untouched: {} states, p99 {} max {} | largest correction step {:.1} mm per 60 Hz frame",
-                p.prediction_untouched_states,
-                mm(p.prediction_untouched_m_p99),
-                mm(p.prediction_untouched_m_max),
-                p.correction_jump_m_max * 1e3
-            )?;
-            writeln!(
-                f,
-                "  interp   {} bodies drawn vs the server: p50 {} p99 {} | steady {}: p99 {} | the others p99 {}",
-                p.interpolation_samples,
-                mm(p.interpolation_error_m_p50),
-                mm(p.interpolation_error_m_p99),
-                p.interpolation_steady_samples,
-                mm(p.interpolation_steady_m_p99),
-                mm(p.interpolation_changed_m_p99)
-            )?;
-        }
+        self.prediction.write(f)?;
         if self.state_frames > 0 {
             writeln!(
                 f,
@@ -349,6 +328,53 @@ impl std::fmt::Display for Report {
             self.server_overruns,
             self.clock_resyncs
         )
+    }
+}
+
+impl Prediction {
+    /// The prediction's lines of the readable report (none without game clients).
+    fn write(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let p = self;
+        if p.predicting_clients == 0 {
+            return Ok(());
+        }
+        let pct = |x: Option<f64>| x.map_or("-".to_string(), |x| format!("{:.2} %", 100.0 * x));
+        let m = |x: Option<f64>| x.map_or("-".to_string(), |x| format!("{:.3} m", x));
+        let mm = |x: Option<f64>| x.map_or("-".to_string(), |x| format!("{:.3} mm", x * 1e3));
+        let causes: Vec<String> = p.prediction_causes.iter().map(|(k, v)| format!("{k} {v}")).collect();
+        writeln!(
+            f,
+            "  predict  {} clients ({} stopped) | {} states ({} teleports apart), {} exact, {} mispredicted ({}) | error p50 {} p99 {} max {}",
+            p.predicting_clients,
+            p.prediction_stopped,
+            p.prediction_states,
+            p.prediction_teleports,
+            p.prediction_exact,
+            pct(p.prediction_mispredicted_share),
+            if causes.is_empty() { "none".into() } else { causes.join(", ") },
+            m(p.prediction_error_m_p50),
+            m(p.prediction_error_m_p99),
+            m(p.prediction_error_m_max),
+        )?;
+        writeln!(
+            f,
+            "           untouched: {} states, p99 {} max {} | largest correction step {:.1} mm per 60 Hz frame",
+            p.prediction_untouched_states,
+            mm(p.prediction_untouched_m_p99),
+            mm(p.prediction_untouched_m_max),
+            p.correction_jump_m_max * 1e3
+        )?;
+        writeln!(
+            f,
+            "  interp   {} bodies drawn vs the server: p50 {} p99 {} | steady {}: p99 {} | the others p99 {}",
+            p.interpolation_samples,
+            mm(p.interpolation_error_m_p50),
+            mm(p.interpolation_error_m_p99),
+            p.interpolation_steady_samples,
+            mm(p.interpolation_steady_m_p99),
+            mm(p.interpolation_changed_m_p99)
+        )?;
+        Ok(())
     }
 }
 

@@ -237,6 +237,8 @@ mod tests {
             fixed: false,
             rotation: None,
             local_shape: None,
+            state: Default::default(),
+            teleported: None,
         }
     }
 

@@ -107,6 +107,10 @@ pub enum Reconciled {
     /// No prediction to compare (the first state, a new avatar, a tick outside the history):
     /// taken as it is.
     Taken,
+    /// Game logic teleported the avatar (the state names a teleport the prediction did not
+    /// have): taken, replayed, and drawn there at once; no misprediction, since no client could
+    /// have known.
+    Teleported,
 }
 
 /// The avatar's whole core state at the start of a tick.
@@ -119,6 +123,7 @@ struct Snap {
     still: u16,
     touching: Vec<Touch>,
     class: ClassId,
+    teleported: Option<Tick>,
 }
 
 impl Snap {
@@ -146,6 +151,7 @@ impl Snap {
             still: s.still_ticks,
             touching,
             class: s.class.filter(|c| usize::from(*c) < classes).map_or(known, ClassId),
+            teleported: s.teleported,
         }
     }
 }
@@ -296,6 +302,7 @@ impl Predictor {
             still: b.still_ticks[0],
             touching: w.touching.clone(),
             class: b.class[0],
+            teleported: b.teleported[0],
         }
     }
 
@@ -311,6 +318,9 @@ impl Predictor {
         if w.bodies.class[0] != s.class {
             // Game logic changed it (a ghost, a pickup taken): the rules it moves by change too.
             w.bodies.set_class(0, s.class);
+        }
+        if w.bodies.teleported[0] != s.teleported {
+            w.bodies.set_teleported(0, s.teleported);
         }
         while self.history.back().is_some_and(|h| h.tick >= s.tick) {
             self.history.pop_back();
@@ -352,6 +362,7 @@ impl Predictor {
         let before = self.position();
         let result = match predicted {
             Some(ours) if *ours == theirs => return Reconciled::Exact,
+            Some(ours) if ours.teleported != theirs.teleported => Reconciled::Teleported,
             Some(ours) => Reconciled::Corrected((ours.pos - pos).length()),
             None => Reconciled::Taken,
         };
@@ -362,7 +373,7 @@ impl Predictor {
         }
         let jump = before - self.position();
         self.offset += jump;
-        if self.offset.length() > self.cfg.snap_m {
+        if self.offset.length() > self.cfg.snap_m || result == Reconciled::Teleported {
             self.offset = DVec3::ZERO;
         }
         result
@@ -518,6 +529,7 @@ mod tests {
                 still_ticks: b.still_ticks[i],
                 touching,
                 class: Some(b.class[i].0),
+                teleported: b.teleported[i],
             }
         }
     }
@@ -562,17 +574,13 @@ mod tests {
         predicts_exactly(&scene, &scene.rules(), intent);
     }
 
-    /// Game logic turns the avatar into a ghost (no gravity, through everything) mid-walk: the
-    /// state after says so (`class`), the predictor takes it, and predicts the ghost exactly.
-    #[test]
-    fn a_class_change_by_game_logic_is_followed() {
-        let ghost = "[[class]]\n        name = \"ghost\"\n        gravity = false\n\n        [[class]]\n        name = \"ground\"";
-        let text = SCENE.replacen("[[class]]\n        name = \"ground\"", ghost, 1);
-        let scene = Scene::parse(&text, "<yard>").unwrap();
-        let mut server = Server::new(&scene);
+    /// Walks the avatar for 240 ticks while game logic acts on it once, at the 120th, and
+    /// returns what each authoritative state (every third tick) did to the prediction.
+    fn logic_acts_once(scene: &Scene, logic: impl Fn(EntityId) -> Action) -> Vec<Reconciled> {
+        let mut server = Server::new(scene);
         let mut p = Predictor::new(&scene.rules(), ME, PredictConfig::default()).unwrap();
         p.authoritative(server.world.tick, &server.state());
-        let (mut exact, mut other) = (0, 0);
+        let mut seen = Vec::new();
         for k in 0..240u32 {
             let tick = server.world.tick;
             let actions = walk(server.avatar, k);
@@ -580,18 +588,38 @@ mod tests {
             p.advance_to(Tick(tick.0 + 2));
             let mut inputs = vec![TickInput::new(ME, k + 1, actions)];
             if k == 120 {
-                let boo = Action::SetClass { entity: server.avatar, class: "ghost".into() };
-                inputs.push(TickInput { logic: true, ..TickInput::new(ClientId(900), 1, vec![boo]) });
+                inputs.push(TickInput { logic: true, ..TickInput::new(ClientId(900), 1, vec![logic(server.avatar)]) });
             }
             server.step(&inputs);
             if k % 3 == 2 {
-                match p.authoritative(server.world.tick, &server.state()) {
-                    Reconciled::Exact => exact += 1,
-                    _ => other += 1,
-                }
+                seen.push(p.authoritative(server.world.tick, &server.state()));
             }
         }
-        assert_eq!(other, 1, "only the state that showed the change: {exact} exact");
+        seen
+    }
+
+    /// Game logic turns the avatar into a ghost (no gravity, through everything) mid-walk: the
+    /// state after says so (`class`), the predictor takes it, and predicts the ghost exactly.
+    #[test]
+    fn a_class_change_by_game_logic_is_followed() {
+        let ghost = "[[class]]\n        name = \"ghost\"\n        gravity = false\n\n        [[class]]\n        name = \"ground\"";
+        let text = SCENE.replacen("[[class]]\n        name = \"ground\"", ghost, 1);
+        let scene = Scene::parse(&text, "<yard>").unwrap();
+        let seen = logic_acts_once(&scene, |avatar| Action::SetClass { entity: avatar, class: "ghost".into() });
+        let other = seen.iter().filter(|r| **r != Reconciled::Exact).count();
+        assert_eq!(other, 1, "only the state that showed the change: {seen:?}");
+    }
+
+    /// Game logic teleports the avatar mid-walk: the state after names the teleport, which the
+    /// predictor takes as a jump (not a misprediction), drawn there at once; every other state
+    /// is exact.
+    #[test]
+    fn a_teleport_by_game_logic_is_a_jump_not_a_misprediction() {
+        let scene = Scene::parse(SCENE, "<yard>").unwrap();
+        let to = [3.0, 1.2, -2.0];
+        let seen = logic_acts_once(&scene, |avatar| Action::Teleport { entity: avatar, position: to, velocity: None });
+        assert_eq!(seen.iter().filter(|r| **r == Reconciled::Teleported).count(), 1, "{seen:?}");
+        assert!(seen.iter().all(|r| matches!(r, Reconciled::Exact | Reconciled::Teleported)), "{seen:?}");
     }
 
     fn predicts_exactly(scene: &Scene, rules: &SceneRules, act: impl Fn(EntityId, u32) -> Vec<Action>) {

@@ -23,7 +23,10 @@
 //!   most [`RemoteConfig::max_extrapolation_s`], and then held;
 //! - before its first sample (it has just entered the view, moving): carried back at that sample's
 //!   velocity, where the server had it (held at the sample instead, it would be drawn up to the
-//!   interpolation delay ahead of where it was: 0.5 m at 5 m/s).
+//!   interpolation delay ahead of where it was: 0.5 m at 5 m/s), unless game logic teleported it
+//!   into the view ([`BodyInfo::teleported`]): before that tick it was elsewhere, and is not drawn;
+//! - across a teleport (its samples either side name different ones): where it was before the
+//!   teleport's tick and where it went from it on, never between.
 //!
 //! The stream's rules (PROTOCOL.md, state streams): a full frame replaces what is held, a delta
 //! applies to the frame before it, and after a gap in the frame numbers deltas are ignored until
@@ -80,6 +83,8 @@ pub struct Sample {
     pub velocity: [f64; 3],
     /// Asleep.
     pub asleep: bool,
+    /// The tick of the body's last teleport as of this sample (see [`BodyInfo::teleported`]).
+    pub teleported: Option<Tick>,
 }
 
 impl Sample {
@@ -260,7 +265,8 @@ impl RemoteWorld {
             self.stats.unknown_bodies += 1;
             return;
         }
-        let sample = Sample { tick, position: p.map(f64::from), velocity: v.map(f64::from), asleep };
+        let teleported = b.info.teleported;
+        let sample = Sample { tick, position: p.map(f64::from), velocity: v.map(f64::from), asleep, teleported };
         // Samples stay in tick order; one for a tick already held replaces it.
         while b.samples.back().is_some_and(|s| s.tick >= tick) {
             b.samples.pop_back();
@@ -293,7 +299,19 @@ impl RemoteWorld {
         // The last sample at or before r, and the one after it.
         let after = b.samples.partition_point(|s| f64::from(s.tick.0) <= r);
         let (position, velocity, steady) = match (after.checked_sub(1).map(|k| &b.samples[k]), b.samples.get(after)) {
+            // Before a teleport that brought it: it was elsewhere, not drawn.
+            // A tick's inputs apply at its start, after the state of that tick: a body teleported
+            // at tick T is where it was at T, and elsewhere after.
+            (None, _) if first.teleported.is_some_and(|t| r <= f64::from(t.0)) => return None,
             (None, _) => (first.at(r, dt), first.velocity, false),
+            // A teleport between the two: each side drawn on its own path, never between.
+            (Some(a), Some(n)) if a.teleported != n.teleported => {
+                if n.teleported.is_some_and(|t| r <= f64::from(t.0)) {
+                    (a.at(r, dt), a.velocity, false)
+                } else {
+                    (n.at(r, dt), n.velocity, false)
+                }
+            }
             // Up to the stream's newest frame, the stream vouches that nothing changed it.
             (Some(a), None) => (a.at(r, dt), a.velocity, r <= newest),
             (Some(a), Some(n)) if a.velocity == n.velocity => {
@@ -362,6 +380,8 @@ mod tests {
             fixed: false,
             rotation: None,
             local_shape: None,
+            state: Default::default(),
+            teleported: None,
         }
     }
 
@@ -409,6 +429,29 @@ mod tests {
         // Six ticks before it entered (a 100 ms delay at 64 Hz): 0.6 m back.
         assert!((x_at(&w, 1, 10.0) - 0.4).abs() < 1e-6, "{}", x_at(&w, 1, 10.0));
         assert!((x_at(&w, 1, 16.0) - 1.0).abs() < 1e-12);
+    }
+
+    /// A body game logic teleported (its info says since when): drawn on its old path before
+    /// the teleport's tick and on its new one from it, never sliding between; one teleported
+    /// into the view is not drawn before it came.
+    #[test]
+    fn a_teleport_is_drawn_as_a_jump_at_its_tick() {
+        let mut w = RemoteWorld::new(RemoteConfig::new(HZ));
+        w.apply(&frame(0, 10, true, &[(1, [0.0, 0.0, 0.0], [6.4, 0.0, 0.0])]));
+        // Teleported at tick 12 to x = 50, standing: the frame at 13 says so.
+        let mut jumped = frame(1, 13, false, &[(1, [50.0, 0.0, 0.0], [0.0, 0.0, 0.0])]);
+        jumped.entered.push(BodyInfo { teleported: Some(Tick(12)), ..info(1) });
+        // And another body teleported into the view at tick 12.
+        jumped.entered.push(BodyInfo { teleported: Some(Tick(12)), ..info(2) });
+        jumped.moved.push(BodyMotion(EntityId(2), [-5.0, 0.0, 0.0], [0.0; 3], false));
+        w.apply(&jumped);
+        // The state at tick 12 is before its inputs: still on the old path.
+        assert!((x_at(&w, 1, 11.5) - 0.15).abs() < 1e-6, "old path: {}", x_at(&w, 1, 11.5));
+        assert!((x_at(&w, 1, 12.0) - 0.2).abs() < 1e-6, "old path: {}", x_at(&w, 1, 12.0));
+        assert_eq!(x_at(&w, 1, 12.5), 50.0);
+        assert!(!w.draw_one(EntityId(1), 11.5).unwrap().steady);
+        assert_eq!(w.draw_one(EntityId(2), 12.0), None, "not here before its teleport");
+        assert_eq!(x_at(&w, 2, 12.5), -5.0);
     }
 
     /// A bounce between two frames: drawn exactly at each frame's tick, and continuously between

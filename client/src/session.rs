@@ -34,7 +34,7 @@ use impact_core::scene::SceneRules;
 use impact_protocol::limits::{MAX_ACTIONS_PER_INPUT, MAX_INPUTS_PER_MESSAGE};
 use impact_protocol::{
     Action, ClientId, ClientInput, ClientMessage, EntityId, FullFrameRequest, InputBatch, RayResult, RejectReason,
-    SceneDescription, ServerMessage, Tick, TimePing, Welcome,
+    SceneDescription, ServerMessage, Tick, TimePing, Welcome, WorldClosed,
 };
 use std::collections::{BTreeMap, VecDeque};
 use std::time::{Duration, Instant};
@@ -144,6 +144,8 @@ pub enum Status {
     Syncing,
     /// Ready: inputs are stamped on time.
     Playing,
+    /// The world closed ([`Session::closed`] says where its players go next): no more inputs.
+    Closed,
 }
 
 /// Why [`Session::input`] refused actions.
@@ -151,6 +153,8 @@ pub enum Status {
 pub enum InputError {
     /// No welcome yet: the session knows neither the server's tick nor its rate.
     NotJoined,
+    /// The world closed ([`Session::closed`]).
+    Closed,
     /// More actions than one input may carry.
     TooManyActions {
         /// How many were given.
@@ -162,6 +166,7 @@ impl std::fmt::Display for InputError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             InputError::NotJoined => write!(f, "not joined yet: wait for the welcome (Status::Playing)"),
+            InputError::Closed => write!(f, "the world closed (Session::closed says where to go next)"),
             InputError::TooManyActions { count } => {
                 write!(f, "{count} actions in one input; at most {MAX_ACTIONS_PER_INPUT}")
             }
@@ -233,6 +238,9 @@ pub struct PredictionStats {
     pub exact: u64,
     /// States taken without a prediction to compare (the first, a new avatar).
     pub taken: u64,
+    /// States that named a teleport by game logic the prediction could not know: taken and
+    /// drawn there at once, not compared.
+    pub teleported: u64,
     /// Mispredictions by cause, each classified when the next state arrives (what explains it,
     /// an event correction or an ack, travels on other keys and may come just after it):
     /// `other_body` (another body collided with the avatar, by its events, or came within reach
@@ -292,6 +300,8 @@ pub struct Session {
     unclassified: Option<Miss>,
     /// When a full state frame was last asked for.
     full_asked: Option<Instant>,
+    /// The world's closing notice.
+    closed: Option<WorldClosed>,
 }
 
 impl Session {
@@ -322,6 +332,7 @@ impl Session {
             last_drawn: None,
             unclassified: None,
             full_asked: None,
+            closed: None,
         }
     }
 
@@ -402,6 +413,10 @@ impl Session {
         let error = match p.authoritative(tick, s) {
             Reconciled::Taken => {
                 self.prediction.taken += 1;
+                return;
+            }
+            Reconciled::Teleported => {
+                self.prediction.teleported += 1;
                 return;
             }
             Reconciled::Exact => 0.0,
@@ -488,6 +503,12 @@ impl Session {
     /// Where the session is.
     pub fn status(&self) -> Status {
         self.status
+    }
+
+    /// The world's closing notice, once it closed ([`Status::Closed`]): where its players go
+    /// next (a game joins that world with a new session and connection), and why.
+    pub fn closed(&self) -> Option<&WorldClosed> {
+        self.closed.as_ref()
     }
 
     /// The last welcome: the avatar, tick rate, window and lead bounds.
@@ -664,6 +685,12 @@ impl Session {
             }
             ServerMessage::Stats(s) => self.observe(s.tick, now),
             ServerMessage::Scene(d) => self.scene(&d),
+            ServerMessage::Closed(c) => {
+                self.status = Status::Closed;
+                self.outgoing.clear();
+                self.resend.clear();
+                self.closed = Some(c);
+            }
             _ => self.stats.skipped += 1,
         }
     }
@@ -716,6 +743,9 @@ impl Session {
     /// remote world is drawn at now (`aim_tick`), so the server rewinds the shot to what the
     /// player saw. Returns its seq.
     pub fn input(&mut self, actions: Vec<Action>, now: Instant) -> Result<u32, InputError> {
+        if self.status == Status::Closed {
+            return Err(InputError::Closed);
+        }
         if actions.len() > MAX_ACTIONS_PER_INPUT {
             return Err(InputError::TooManyActions { count: actions.len() });
         }
@@ -892,7 +922,7 @@ mod tests {
         let seqs = |m: ClientMessage| match m {
             ClientMessage::Input(i) => vec![i.seq],
             ClientMessage::Inputs(b) => b.inputs.iter().map(|i| i.seq).collect(),
-            ClientMessage::Ping(_) | ClientMessage::FullFrame(_) => vec![],
+            ClientMessage::Ping(_) | ClientMessage::FullFrame(_) | ClientMessage::World(_) => vec![],
         };
         let mut sent = Vec::new();
         for _ in 0..5 {

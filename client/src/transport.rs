@@ -20,7 +20,10 @@
 use crate::session::Session;
 use ::zenoh::Wait;
 use impact_protocol::limits::MAX_SERVER_MESSAGE_BYTES;
-use impact_protocol::{keys, ClientId, ClientMessage, Encoding, SceneDescription, ServerMessage, WorldId};
+use impact_protocol::{
+    encode, keys, ClientId, ClientMessage, Encoding, SceneDescription, ServerMessage, WorldAnswer, WorldCommand,
+    WorldId,
+};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
@@ -238,6 +241,45 @@ pub fn query_scene(
             Inbound::Msg(ServerMessage::Scene(d), _) => return Ok(*d),
             Inbound::NoScene(why) => why,
             _ => format!("{key} answered something that is not a scene"),
+        },
+    };
+    Err(TransportError::Zenoh(why))
+}
+
+/// Game logic's command for `world` (open it from a scene, or close it), as client `client`
+/// (which must have the game-logic role), waiting for the answer at most `timeout`. A refusal
+/// is an answer ([`WorldOutcome::Refused`](impact_protocol::WorldOutcome::Refused) with its
+/// reason); no answer at all is an error (no server in reach opens worlds, or none runs it).
+pub fn world_command(
+    session: &::zenoh::Session,
+    world: &WorldId,
+    client: ClientId,
+    command: WorldCommand,
+    timeout: Duration,
+) -> Result<WorldAnswer, TransportError> {
+    let key = keys::WORLD_COMMAND.key(world, Some(client));
+    let bytes = encode(&ClientMessage::World(command), Encoding::MsgPack)
+        .map_err(|e| TransportError::Zenoh(format!("encoding the world command: {e}")))?;
+    let replies = session
+        .get(&key)
+        .payload(bytes)
+        .encoding(Encoding::MsgPack.zenoh_tag())
+        .timeout(timeout)
+        .wait()
+        .map_err(|e| TransportError::Zenoh(format!("sending the world command: {e}")))?;
+    let why = match replies.recv() {
+        Err(_) => format!(
+            "no server answered {key} within {:.1} s: is a server with --open-worlds (to open) or running the \
+             world (to close) in reach, and is client {client} game logic?",
+            timeout.as_secs_f64()
+        ),
+        Ok(reply) => match reply.result() {
+            Ok(sample) => match decode_server(sample) {
+                Ok(ServerMessage::World(a)) => return Ok(a),
+                Ok(_) => format!("{key} answered something that is not a world answer"),
+                Err(e) => format!("{key}: {e}"),
+            },
+            Err(e) => format!("{key}: {}", e.payload().try_to_string().unwrap_or_default()),
         },
     };
     Err(TransportError::Zenoh(why))

@@ -79,6 +79,8 @@ fn main() {
             fixed: false,
             rotation: None,
             local_shape: None,
+            state: Default::default(),
+            teleported: None,
         }],
         moved: vec![
             BodyMotion(EntityId(3), [10.25, 0.5, -4.0], [-3.5, 0.0, 0.0], false),

@@ -96,6 +96,15 @@ pub enum Action {
         /// The new class, by name: a dynamic one.
         class: String,
     },
+    /// Game logic only: set named numbers of a body's game state (health, team, score); names
+    /// not given keep their values. The state streams carry it to the players near the body.
+    SetState {
+        /// Any dynamic body.
+        entity: EntityId,
+        /// The values to set, by name: at most 8 names of at most 16 bytes on the body in all,
+        /// finite numbers.
+        values: crate::state::GameState,
+    },
     /// Remove an owned entity (game logic: any dynamic body).
     Despawn {
         /// The owned entity.

@@ -42,6 +42,12 @@ pub const QUERY_HISTORY: KeyPattern = KeyPattern { name: "query_history", patter
 /// ([`SceneDescription`](crate::SceneDescription)), for a client that predicts.
 pub const QUERY_SCENE: KeyPattern = KeyPattern { name: "query_scene", pattern: "impact/v1/{world}/query/scene" };
 
+/// Queryable: game logic opens or closes the world `{world}` at run time
+/// ([`ClientMessage::World`](crate::ClientMessage::World), answered by
+/// [`ServerMessage::World`](crate::ServerMessage::World)); `{client}` is the logic client.
+pub const WORLD_COMMAND: KeyPattern =
+    KeyPattern { name: "world_command", pattern: "impact/v1/{world}/client/{client}/world" };
+
 /// The input log, one message per confirmed tick ([`LogTick`](crate::LogTick)).
 pub const LOG: KeyPattern = KeyPattern { name: "log", pattern: "impact/v1/{world}/log" };
 /// Inputs and server actions admitted but not yet confirmed ([`Admitted`](crate::Admitted)).
@@ -59,7 +65,7 @@ pub const CLIENT_STATE: KeyPattern =
     KeyPattern { name: "client_state", pattern: "impact/v1/{world}/client/{client}/state" };
 
 /// Every key impact uses.
-pub const PATTERNS: [KeyPattern; 17] = [
+pub const PATTERNS: [KeyPattern; 18] = [
     INPUT,
     EVENTS,
     CORRECTIONS,
@@ -77,6 +83,7 @@ pub const PATTERNS: [KeyPattern; 17] = [
     QUERY_CHECKPOINT,
     STATE,
     CLIENT_STATE,
+    WORLD_COMMAND,
 ];
 
 impl KeyPattern {

@@ -41,8 +41,8 @@ pub use log::{Admitted, Checkpoint, LogTick, LoggedInput, LoggedSystem};
 pub use message::{
     Action, BodyState, ClientInput, ClientMessage, CorrectionBatch, EventBatch, EventHistory, FullFrameRequest,
     InputAck, InputBatch, InputReject, QueryError, RayHit, RayResult, RejectReason, ServerMessage, ServerStats,
-    ShapeSpec, TimePing, TimePong, Welcome, WorldSnapshot,
+    ShapeSpec, TimePing, TimePong, Welcome, WorldAnswer, WorldClosed, WorldCommand, WorldOutcome, WorldSnapshot,
 };
 pub use scene::SceneDescription;
-pub use state::{AvatarState, AvatarTouch, BodyInfo, BodyMotion, BodyShape, StateFrame};
+pub use state::{AvatarState, AvatarTouch, BodyInfo, BodyMotion, BodyShape, GameState, StateFrame};
 pub use validate::Validate;

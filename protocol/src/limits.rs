@@ -36,3 +36,12 @@ pub const MAX_RAY_DISTANCE_M: f64 = 1.0e5;
 
 /// Deepest nesting the MessagePack decoder follows before it gives up (a depth bomb guard).
 pub const MAX_DECODE_DEPTH: usize = 16;
+
+/// Most named numbers in one body's game state ([`GameState`](crate::GameState)).
+pub const MAX_GAME_STATE_VALUES: usize = 8;
+
+/// Longest name in a game state, in bytes.
+pub const MAX_GAME_STATE_NAME_LEN: usize = 16;
+
+/// Longest reason a world's closing gives, in bytes.
+pub const MAX_REASON_LEN: usize = 256;

@@ -118,6 +118,12 @@ pub struct CheckpointBody {
     pub asleep: bool,
     /// Ticks it has been slower than the sleep speed.
     pub still_ticks: u16,
+    /// Its game state (absent: none).
+    #[serde(default, skip_serializing_if = "crate::GameState::is_empty")]
+    pub game: crate::GameState,
+    /// The tick of its last teleport (absent: never).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub teleported: Option<Tick>,
 }
 
 /// A resting contact carried from one tick to the next.

@@ -28,6 +28,31 @@ pub enum ClientMessage {
     /// Asks for a full frame on the client's state stream at the next frame (after a gap in the
     /// frame numbers, instead of waiting for the periodic one).
     FullFrame(FullFrameRequest),
+    /// Game logic opens or closes a world at run time: a query on `client/{id}/world` of the
+    /// world in question, answered by [`ServerMessage::World`].
+    World(WorldCommand),
+}
+
+/// See [`ClientMessage::World`]: what to do with the world the key names.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "command", rename_all = "snake_case")]
+pub enum WorldCommand {
+    /// Open the world from the scene named `scene`, one the server may open (started with it,
+    /// or in its `--scene-dir`): a fresh world at tick 0 under the key's world name.
+    Open {
+        /// The scene's name (its file name without `.toml`).
+        scene: String,
+    },
+    /// Close the world: every client in it is told ([`ServerMessage::Closed`]), its last events
+    /// are confirmed, and it stops.
+    Close {
+        /// Where its players go next (a match that follows), if anywhere.
+        #[serde(default)]
+        next: Option<crate::ids::WorldId>,
+        /// Why, for the players (at most 256 bytes).
+        #[serde(default)]
+        reason: String,
+    },
 }
 
 /// See [`ClientMessage::FullFrame`].
@@ -140,6 +165,60 @@ pub enum ServerMessage {
     Pong(TimePong),
     /// The rules and static world (answer to the scene query).
     Scene(Box<crate::scene::SceneDescription>),
+    /// The answer to a [`ClientMessage::World`].
+    World(WorldAnswer),
+    /// The world closed (game logic ended the match, or the server stopped): sent to each client
+    /// in it on its `ack` key, after the world's last events.
+    Closed(WorldClosed),
+}
+
+/// See [`ServerMessage::World`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WorldAnswer {
+    /// The world the command named.
+    pub world: crate::ids::WorldId,
+    /// What became of it.
+    pub outcome: WorldOutcome,
+}
+
+/// What a [`WorldCommand`] did.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "outcome", rename_all = "snake_case")]
+pub enum WorldOutcome {
+    /// The world runs: clients may join it.
+    Opened {
+        /// Its scene's hash (as `query/scene` gives it).
+        scene_hash: u64,
+        /// Its tick rate.
+        tick_hz: u32,
+    },
+    /// The world stopped after this many ticks.
+    Closed {
+        /// Ticks it ran.
+        ticks: u64,
+    },
+    /// Refused: `not_allowed` (the sender has no game-logic role, or this server opens no
+    /// worlds), `out_of_range` (no such scene, the world exists or does not, the server's
+    /// world limit), `malformed` (not a world command).
+    Refused {
+        /// Why.
+        reason: RejectReason,
+        /// Details.
+        detail: String,
+    },
+}
+
+/// See [`ServerMessage::Closed`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WorldClosed {
+    /// The world.
+    pub world: crate::ids::WorldId,
+    /// Its last tick.
+    pub tick: Tick,
+    /// Where its players go next, if game logic said.
+    pub next: Option<crate::ids::WorldId>,
+    /// Why, if game logic said.
+    pub reason: String,
 }
 
 /// The events of one tick.

@@ -58,6 +58,50 @@ pub struct BodyInfo {
     /// dimensions (hulls, meshes and terrain are drawn by their bounds: absent).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub local_shape: Option<crate::ShapeSpec>,
+    /// Its game state, as game logic set it (absent: none).
+    #[serde(default, skip_serializing_if = "GameState::is_empty")]
+    pub state: GameState,
+    /// The tick game logic last teleported it at (absent: never): its path breaks there, so a
+    /// receiver draws it on its old path up to that tick (a tick's state is before its inputs)
+    /// and on its new one after, never between.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub teleported: Option<Tick>,
+}
+
+/// A body's game state: a few named numbers game logic keeps on it (health, team, score), at
+/// most [`MAX_GAME_STATE_VALUES`](crate::limits::MAX_GAME_STATE_VALUES) names of at most
+/// [`MAX_GAME_STATE_NAME_LEN`](crate::limits::MAX_GAME_STATE_NAME_LEN) bytes each. Part of the
+/// world: it rolls back and replays with the bodies, is in the state hash, and the state
+/// streams carry it to the players whose area the body is in. A map on the wire
+/// (`{"health": 75, "team": 1}`), in name order.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct GameState(pub std::collections::BTreeMap<String, f64>);
+
+impl GameState {
+    /// Whether it holds no value.
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
+    /// The value named `name`.
+    pub fn get(&self, name: &str) -> Option<f64> {
+        self.0.get(name).copied()
+    }
+
+    /// `values` merged into this state (each name set; a name not given is kept), or `None` if
+    /// the result would hold more than the bound of names.
+    pub fn merged(&self, values: &GameState) -> Option<GameState> {
+        let mut out = self.clone();
+        out.0.extend(values.0.iter().map(|(k, v)| (k.clone(), *v)));
+        (out.0.len() <= crate::limits::MAX_GAME_STATE_VALUES).then_some(out)
+    }
+}
+
+impl<const N: usize> From<[(&str, f64); N]> for GameState {
+    fn from(values: [(&str, f64); N]) -> GameState {
+        GameState(values.into_iter().map(|(k, v)| (k.to_string(), v)).collect())
+    }
 }
 
 /// Where a body is and how it moves, as an array `[entity, [x, y, z], [vx, vy, vz], asleep]`
@@ -121,6 +165,10 @@ pub struct AvatarState {
     /// a server that does not say).
     #[serde(default)]
     pub class: Option<u16>,
+    /// The tick game logic last teleported it at (absent: never): a prediction from before it
+    /// is no misprediction but a jump the client could not know.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub teleported: Option<Tick>,
 }
 
 /// One resting contact of an avatar with static geometry (see [`AvatarState::touching`]).

@@ -109,6 +109,32 @@ impl ShapeSpec {
     }
 }
 
+/// A game state's bounds: a few names of a few bytes, finite values.
+fn game_state(g: &crate::GameState, path: &dyn Fn() -> String) -> Result<(), ProtocolError> {
+    count(g.0.len(), MAX_GAME_STATE_VALUES, &path())?;
+    for (k, v) in &g.0 {
+        if k.is_empty() || k.len() > MAX_GAME_STATE_NAME_LEN {
+            return Err(ProtocolError::OutOfRange {
+                field: path(),
+                detail: format!("name {k:?}: 1 to {MAX_GAME_STATE_NAME_LEN} bytes"),
+            });
+        }
+        finite(*v, || format!("{}.{k}", path()))?;
+    }
+    Ok(())
+}
+
+/// A reason's length.
+fn reason(r: &str) -> Result<(), ProtocolError> {
+    if r.len() > MAX_REASON_LEN {
+        return Err(ProtocolError::OutOfRange {
+            field: "reason".into(),
+            detail: format!("{} bytes, at most {MAX_REASON_LEN}", r.len()),
+        });
+    }
+    Ok(())
+}
+
 impl Validate for Action {
     fn validate(&self) -> Result<(), ProtocolError> {
         self.validate_at(&|| "action".to_string())
@@ -163,6 +189,7 @@ impl Action {
                 vec3(velocity, MAX_SPEED_MPS, "speed (m/s)", || field("velocity"))
             }
             Action::SetClass { class, .. } => name(class, || field("class")),
+            Action::SetState { values, .. } => game_state(values, &|| field("values")),
             Action::Despawn { .. } => Ok(()),
         }
     }
@@ -210,6 +237,8 @@ impl Validate for ClientMessage {
                 batch.inputs.iter().try_for_each(Validate::validate)
             }
             ClientMessage::Ping(_) | ClientMessage::FullFrame(_) => Ok(()),
+            ClientMessage::World(WorldCommand::Open { scene }) => name(scene, || "scene".into()),
+            ClientMessage::World(WorldCommand::Close { reason: r, .. }) => reason(r),
         }
     }
 }
@@ -276,6 +305,11 @@ impl Validate for ServerMessage {
                 }
                 Ok(())
             }
+            ServerMessage::Closed(c) => reason(&c.reason),
+            ServerMessage::World(a) => match &a.outcome {
+                WorldOutcome::Refused { detail, .. } => count(detail.len(), 4096, "detail"),
+                _ => Ok(()),
+            },
             ServerMessage::State(f) => {
                 let f32s = |v: &[f32; 3], path: &dyn Fn() -> String| {
                     v.iter().enumerate().try_for_each(|(k, x)| finite(f64::from(*x), || format!("{}[{k}]", path())))
@@ -300,6 +334,7 @@ impl Validate for ServerMessage {
                         Some(ShapeSpec::Convex { .. } | ShapeSpec::Mesh { .. }) | None => Vec::new(),
                     };
                     sizes.iter().try_for_each(|x| finite(*x, || format!("entered[{i}].local_shape")))?;
+                    game_state(&b.state, &|| format!("entered[{i}].state"))?;
                 }
                 for (i, m) in f.moved.iter().enumerate() {
                     f32s(&m.1, &|| format!("moved[{i}].position"))?;

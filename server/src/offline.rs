@@ -54,7 +54,7 @@ pub fn read_inputs(path: &Path) -> Result<InputScript, OfflineError> {
         let inputs = match msg {
             ClientMessage::Input(input) => vec![input],
             ClientMessage::Inputs(batch) => batch.inputs,
-            ClientMessage::Ping(_) | ClientMessage::FullFrame(_) => {
+            ClientMessage::Ping(_) | ClientMessage::FullFrame(_) | ClientMessage::World(_) => {
                 let detail = "not an input: only `input` and `inputs` lines apply".to_string();
                 return Err(OfflineError::Inputs { file: file.clone(), line: k + 1, detail });
             }

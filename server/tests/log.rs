@@ -5,7 +5,7 @@
 
 use impact_core::scene::Scene;
 use impact_core::sim::{Plan, Pool};
-use impact_protocol::{Action, ClientId, ClientInput, EntityId, LogTick, ShapeSpec, Tick};
+use impact_protocol::{Action, ClientId, ClientInput, EntityId, GameState, LogTick, ShapeSpec, Tick};
 use impact_server::recording::{self, Recorder};
 use impact_server::rollback::log::ConfirmedTick;
 use impact_server::rollback::{RollbackConfig, Session};
@@ -132,7 +132,7 @@ fn a_checkpoint_restores_the_complete_state() {
 }
 
 /// Game logic's commands (the ball teleported back into play, a second ball spawned, the bat
-/// pushed), some arriving late: they roll back like inputs, the log marks them, and a follower
+/// pushed and its score kept as game state), some arriving late: they roll back like inputs, the log marks them, and a follower
 /// and a replay of the recording reach every hash without knowing who has the role.
 #[test]
 fn game_logic_commands_roll_back_log_and_replay_bit_for_bit() {
@@ -158,9 +158,15 @@ fn game_logic_commands_roll_back_log_and_replay_bit_for_bit() {
     let push = Action::ApplyImpulse { entity: EntityId(6), impulse: [0.0, 50.0, 0.0] };
     inputs.push((90, command(1, 80, vec![back.clone()]))); // 10 ticks late
     inputs.push((120, command(2, 120, vec![another])));
-    inputs.push((165, command(3, 160, vec![push, back]))); // 5 ticks late
+    let score = Action::SetState { entity: EntityId(6), values: GameState::from([("score", 1.0)]) };
+    inputs.push((165, command(3, 160, vec![push, back, score]))); // 5 ticks late
     let log = run_logged(&scene, &inputs, 300);
     let marked: Vec<_> = log.iter().flat_map(|l| &l.inputs).filter(|i| i.logic).map(|i| i.seq).collect();
+    // The score is in the world the log ends with (its hash covers it).
+    let mut end = new_session(&scene);
+    follow(&mut end, &log, &scene);
+    let bat = end.world().bodies.slot(EntityId(6)).expect("the bat");
+    assert_eq!(end.world().bodies.game[bat].get("score"), Some(1.0));
     assert_eq!(marked, vec![1, 2, 3], "every command logged, marked as game logic's");
     assert!(log.iter().flat_map(|l| &l.inputs).filter(|i| i.client != LOGIC).all(|i| !i.logic));
     // A follower that knows no logic client applies them as logged.

@@ -11,7 +11,7 @@ use common::*;
 use impact_client::transport::{ConnectOptions, Connection, TransportError};
 use impact_client::{Session, SessionConfig, Status};
 use impact_core::scene::Scene;
-use impact_protocol::{Action, ClientId, ClientMessage, WorldId};
+use impact_protocol::{Action, ClientId, ClientMessage, GameState, WorldId};
 use std::time::{Duration, Instant};
 use zenoh::Wait;
 
@@ -220,8 +220,11 @@ fn game_logic_teleports_a_player_and_the_player_may_not() {
     use impact_client::Outcome;
     use impact_protocol::{keys, RejectReason, ServerMessage};
     let logic_id = ClientId(900);
-    let (server, ep) =
-        server(Scene::load(&Scene::bundled_path("arena")).unwrap(), |o| o.logic_clients = vec![logic_id]);
+    let (server, ep) = server(Scene::load(&Scene::bundled_path("arena")).unwrap(), |o| {
+        o.logic_clients = vec![logic_id];
+        // No full frame in the test's time: a changed state must come by itself.
+        o.state.full_every = 100_000;
+    });
     let conn = Connection::open(&options(&ep, 1)).expect("connects");
     let mut player = Session::new(SessionConfig::new(ClientId(1)));
     join(&conn, &mut player);
@@ -274,8 +277,116 @@ fn game_logic_teleports_a_player_and_the_player_may_not() {
     let body = state.bodies.iter().find(|b| b.entity == avatar).unwrap();
     let d = (0..3).map(|k| (body.position[k] - to[k]).powi(2)).sum::<f64>().sqrt();
     assert!(d < 0.5, "the avatar is at {:?}, not {to:?}", body.position);
+
+    // Game state and a class change: the player's own stream announces both on the body it
+    // already holds; the player may set neither.
+    let hurt = Action::SetState { entity: avatar, values: GameState::from([("health", 75.0), ("team", 2.0)]) };
+    let seq = player.input(vec![hurt.clone()], Instant::now()).unwrap();
+    let a = answer(&mut player, &conn, (&mut logic, &lconn), seq);
+    assert_eq!(a.outcome, Outcome::Rejected(RejectReason::NotAllowed));
+    let recolour = Action::SetClass { entity: avatar, class: "ball".into() };
+    let seq = logic.input(vec![hurt, recolour], Instant::now()).unwrap();
+    let a = answer(&mut logic, &lconn, (&mut player, &conn), seq);
+    assert!(matches!(a.outcome, Outcome::Accepted { .. }), "{:?}", a.outcome);
+    let by = Instant::now() + Duration::from_secs(3);
+    loop {
+        conn.pump(&mut player, Instant::now()).unwrap();
+        lconn.pump(&mut logic, Instant::now()).unwrap();
+        let info = player.remote().and_then(|r| r.info(avatar));
+        if let Some(i) = info.filter(|i| !i.state.is_empty()) {
+            assert_eq!((i.state.get("health"), i.state.get("team")), (Some(75.0), Some(2.0)), "{i:?}");
+            assert_eq!(i.class, "ball", "{i:?}");
+            break;
+        }
+        assert!(Instant::now() < by, "the stream never carried the game state: {info:?}");
+        std::thread::sleep(Duration::from_millis(10));
+    }
     conn.close();
     lconn.close();
     let summary = server.stop();
-    assert_eq!(summary.inputs_accepted, 1, "{summary}");
+    assert_eq!(summary.inputs_accepted, 2, "{summary}");
+}
+
+/// Game logic opens a world from a scene at run time (a match starting), a player joins and
+/// plays in it, and game logic closes it (the match over) naming the next: the player is told,
+/// and its session stops taking inputs. A player may do neither; an unknown scene, a world open
+/// already and the process's limit are refused with their reasons.
+#[test]
+fn game_logic_opens_and_closes_a_world_at_run_time() {
+    use impact_client::transport::world_command;
+    use impact_client::InputError;
+    use impact_protocol::{RejectReason, WorldCommand, WorldOutcome};
+    use impact_server::runtime::{Host, HostOptions, ServerOptions};
+    let logic = ClientId(900);
+    let ep = format!("tcp/127.0.0.1:{}", free_port());
+    let options = move |_: &Scene| ServerOptions {
+        listen: vec![ep.clone()],
+        logic_clients: vec![logic],
+        ..ServerOptions::default()
+    };
+    let arena = Scene::load(&Scene::bundled_path("arena")).unwrap();
+    let first = options(&arena);
+    let endpoint = first.listen[0].clone();
+    let host = HostOptions {
+        open_worlds: 1,
+        scenes: [("arena".to_string(), Scene::bundled_path("arena"))].into(),
+        options: std::sync::Arc::new(options),
+        ..HostOptions::none()
+    };
+    let host = Host::start(vec![(arena, first)], host).expect("host starts");
+    let zs = client(&endpoint);
+    let match2 = WorldId::new("arena-2").unwrap();
+    let t = Duration::from_secs(5);
+    let open = |scene: &str| WorldCommand::Open { scene: scene.into() };
+    let refused = |a: impact_protocol::WorldAnswer| match a.outcome {
+        WorldOutcome::Refused { reason, detail } => (reason, detail),
+        o => panic!("not refused: {o:?}"),
+    };
+
+    let (why, _) = refused(world_command(&zs, &match2, ClientId(1), open("arena"), t).unwrap());
+    assert_eq!(why, RejectReason::NotAllowed, "a player opens no world");
+    let (why, detail) = refused(world_command(&zs, &match2, logic, open("no-such"), t).unwrap());
+    assert!(why == RejectReason::OutOfRange && detail.contains("no scene"), "{detail}");
+    let a = world_command(&zs, &match2, logic, open("arena"), t).unwrap();
+    let WorldOutcome::Opened { scene_hash, tick_hz } = a.outcome else { panic!("{a:?}") };
+    assert_eq!(tick_hz, 64);
+    assert_eq!(host.worlds().len(), 2);
+    let (why, detail) = refused(world_command(&zs, &match2, logic, open("arena"), t).unwrap());
+    assert!(why == RejectReason::OutOfRange && detail.contains("open already"), "{detail}");
+    let (why, detail) =
+        refused(world_command(&zs, &WorldId::new("arena-3").unwrap(), logic, open("arena"), t).unwrap());
+    assert!(why == RejectReason::OutOfRange && detail.contains("at most 1"), "{detail}");
+
+    // A player in the new match.
+    let conn =
+        Connection::open(&ConnectOptions::new(vec![endpoint.clone()], match2.clone(), ClientId(1))).expect("connects");
+    let mut player = Session::new(SessionConfig::new(ClientId(1)));
+    join(&conn, &mut player);
+    assert_eq!(player.welcome().map(|w| w.scene_hash), Some(scene_hash));
+    let avatar = player.avatar().expect("an avatar in the new world");
+    player.input(vec![Action::SetVelocity { entity: avatar, velocity: [1.0, 0.0, 0.0] }], Instant::now()).unwrap();
+
+    let close = WorldCommand::Close { next: Some(WorldId::new("arena").unwrap()), reason: "match over".into() };
+    let (why, _) = refused(world_command(&zs, &match2, ClientId(1), close.clone(), t).unwrap());
+    assert_eq!(why, RejectReason::NotAllowed, "a player closes no world");
+    let a = world_command(&zs, &match2, logic, close, t).unwrap();
+    let WorldOutcome::Closed { ticks } = a.outcome else { panic!("{a:?}") };
+    assert!(ticks > 0);
+    let by = Instant::now() + Duration::from_secs(3);
+    while player.status() != Status::Closed {
+        assert!(Instant::now() < by, "the player was not told: {:?}", player.status());
+        conn.pump(&mut player, Instant::now()).unwrap();
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let notice = player.closed().unwrap();
+    assert_eq!((notice.next.as_ref().map(WorldId::as_str), notice.reason.as_str()), (Some("arena"), "match over"));
+    assert_eq!(player.input(Vec::new(), Instant::now()), Err(InputError::Closed));
+    assert_eq!(host.worlds(), vec![WorldId::new("arena").unwrap()]);
+    // Closed, it may open again (the limit counts running worlds).
+    let a = world_command(&zs, &match2, logic, open("arena"), t).unwrap();
+    assert!(matches!(a.outcome, WorldOutcome::Opened { .. }), "{a:?}");
+    conn.close();
+    let _ = zs.close().wait();
+    let mut host = host;
+    assert_eq!(host.stop_all().len(), 2);
 }

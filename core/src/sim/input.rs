@@ -233,6 +233,20 @@ pub fn check_as(w: &World, who: Sender, actions: &[Action]) -> Result<(), (Rejec
                 }
                 owned(w, who, *entity)?;
             }
+            Action::SetState { entity, values } => {
+                logic_only(who, "set_state")?;
+                let s = owned(w, who, *entity)?;
+                if w.bodies.game[s].merged(values).is_none() {
+                    return Err((
+                        RejectReason::OutOfRange,
+                        format!(
+                            "actions[{k}].values: {} would hold more than {} names",
+                            entity,
+                            impact_protocol::limits::MAX_GAME_STATE_VALUES
+                        ),
+                    ));
+                }
+            }
             Action::SetClass { entity, class } => {
                 logic_only(who, "set_class")?;
                 owned(w, who, *entity)?;
@@ -396,12 +410,29 @@ fn apply_action(
                 hit,
             });
         }
+        Action::Teleport { .. } | Action::SetClass { .. } | Action::SetState { .. } | Action::Spawn { .. } => {
+            apply_logic_action(w, a);
+        }
+        Action::Move { entity, direction, jump } => {
+            if let Some(s) = w.bodies.slot(*entity) {
+                crate::sim::character::apply_move(w, s, *direction, *jump);
+            }
+        }
+        Action::Despawn { entity } => removed.push(*entity),
+    }
+}
+
+/// Game logic's own actions (checked: only game logic sends them).
+fn apply_logic_action(w: &mut World, a: &Action) {
+    let classes = &w.config.classes;
+    match a {
         Action::Teleport { entity, position, velocity } => {
             if let Some(s) = w.bodies.slot(*entity) {
                 w.bodies.pos[s] = DVec3::from_array(*position);
                 if let Some(v) = velocity {
                     w.bodies.vel[s] = DVec3::from_array(*v);
                 }
+                w.bodies.set_teleported(s, w.tick);
                 // Where it was touching is no longer where it is.
                 let id = *entity;
                 w.touching.retain(|t| t.a != id && t.b != id);
@@ -413,6 +444,13 @@ fn apply_action(
             if let (Some(s), Some(k)) = (w.bodies.slot(*entity), found) {
                 w.bodies.set_class(s, crate::sim::world::ClassId(k as u16));
                 crate::sim::island::Islands::default().wake(w, &[s as u32]);
+            }
+        }
+        Action::SetState { entity, values } => {
+            if let Some(s) = w.bodies.slot(*entity) {
+                if let Some(state) = w.bodies.game[s].merged(values) {
+                    w.bodies.set_game(s, state);
+                }
             }
         }
         Action::Spawn { class, shape, position, velocity, owner } => {
@@ -432,12 +470,7 @@ fn apply_action(
             };
             w.spawn(body);
         }
-        Action::Move { entity, direction, jump } => {
-            if let Some(s) = w.bodies.slot(*entity) {
-                crate::sim::character::apply_move(w, s, *direction, *jump);
-            }
-        }
-        Action::Despawn { entity } => removed.push(*entity),
+        _ => {}
     }
 }
 

@@ -7,7 +7,7 @@ use crate::par::{Pool, MIN_PIECE_HEAVY};
 use crate::terrain::heightfield::HeightField;
 use crate::toi::bisect::BisectConfig;
 use glam::{DQuat, DVec3};
-use impact_protocol::{ClientId, EntityId, Tick};
+use impact_protocol::{ClientId, EntityId, GameState, Tick};
 use std::sync::Arc;
 
 /// Index into the class table.
@@ -252,6 +252,12 @@ pub struct BodyTable {
     pub inv_mass: Vec<f64>,
     /// Owning client, if any.
     pub owner: Vec<Option<ClientId>>,
+    /// Game state, as game logic set it: no part of the physics, but of the world (rolled
+    /// back, replayed, hashed).
+    pub game: Vec<GameState>,
+    /// The tick of each body's last teleport (game logic's), if any: where its path breaks, so
+    /// that no client draws or predicts across it.
+    pub teleported: Vec<Option<Tick>>,
 }
 
 /// A pair touching at the end of a tick: the contact cache a resting body's support is read
@@ -361,6 +367,17 @@ impl Bodies {
         Arc::make_mut(&mut self.table).class[slot] = class;
     }
 
+    /// Records that the body in `slot` was teleported at `tick` (`None`: never was; a
+    /// predictor taking the server's word).
+    pub fn set_teleported(&mut self, slot: usize, tick: impl Into<Option<Tick>>) {
+        Arc::make_mut(&mut self.table).teleported[slot] = tick.into();
+    }
+
+    /// Sets the game state of the body in `slot`.
+    pub fn set_game(&mut self, slot: usize, state: GameState) {
+        Arc::make_mut(&mut self.table).game[slot] = state;
+    }
+
     /// The slot of an entity (binary search: ids are sorted).
     pub fn slot(&self, id: EntityId) -> Option<usize> {
         self.id.binary_search(&id).ok()
@@ -416,6 +433,8 @@ impl Bodies {
         t.rot.push(b.rot);
         t.inv_mass.push(b.inv_mass);
         t.owner.push(b.owner);
+        t.game.push(GameState::default());
+        t.teleported.push(None);
     }
 
     /// Removes the slots flagged in `dead`, keeping the order of the rest.
@@ -442,6 +461,8 @@ impl Bodies {
         keep(&mut t.rot, dead);
         keep(&mut t.inv_mass, dead);
         keep(&mut t.owner, dead);
+        keep(&mut t.game, dead);
+        keep(&mut t.teleported, dead);
     }
 
     /// Velocities to write and the constants beside them, borrowed together.
@@ -587,6 +608,13 @@ impl World {
             h.f64(b.inv_mass[i]);
             h.u64(b.owner[i].map_or(u64::MAX, |c| u64::from(c.0)));
             h.u64(u64::from(b.asleep[i]) << 16 | u64::from(b.still_ticks[i]));
+            for (k, v) in &b.game[i].0 {
+                h.bytes(k.as_bytes());
+                h.f64(*v);
+            }
+            if let Some(t) = b.teleported[i] {
+                h.u64(1 << 32 | u64::from(t.0));
+            }
         }
         for t in &self.touching {
             h.u64(u64::from(t.a.0) << 32 | u64::from(t.b.0));
@@ -621,6 +649,15 @@ impl StateHasher {
     /// Mixes in the exact bits of an f64.
     pub fn f64(&mut self, v: f64) {
         self.u64(v.to_bits());
+    }
+    /// Mixes in bytes: their length, then eight at a time.
+    pub fn bytes(&mut self, b: &[u8]) {
+        self.u64(b.len() as u64);
+        for c in b.chunks(8) {
+            let mut w = [0u8; 8];
+            w[..c.len()].copy_from_slice(c);
+            self.u64(u64::from_le_bytes(w));
+        }
     }
     /// The hash.
     pub fn finish(&self) -> u64 {

@@ -52,6 +52,19 @@ pub fn action() -> impl Strategy<Value = Action> {
             Action::FireRay { shooter, origin, direction, max_distance_m }
         }),
         entity().prop_map(|entity| Action::Despawn { entity }),
+        (entity(), small3(), any::<bool>()).prop_map(|(entity, direction, jump)| Action::Move {
+            entity,
+            direction,
+            jump
+        }),
+        (entity(), vec3(), option::of(small3())).prop_map(|(entity, position, velocity)| Action::Teleport {
+            entity,
+            position,
+            velocity
+        }),
+        (entity(), "[a-z]{1,16}").prop_map(|(entity, class)| Action::SetClass { entity, class }),
+        (entity(), btree_map("[a-z]{1,16}", -1.0e6..1.0e6f64, 0..=limits::MAX_GAME_STATE_VALUES))
+            .prop_map(|(entity, values)| Action::SetState { entity, values: GameState(values) }),
     ]
 }
 
@@ -305,6 +318,12 @@ fn state_frame() -> impl Strategy<Value = ServerMessage> {
                         rotation: (shape % 2 == 0).then_some([0.0, 0.382_683_43, 0.0, 0.923_879_5]),
                         local_shape: (shape < 3)
                             .then(|| ShapeSpec::Capsule { half_height_m: half[1], radius_m: half[0] }),
+                        state: if shape % 3 == 0 {
+                            GameState::from([("health", half[0]), ("team", 1.0)])
+                        } else {
+                            GameState::default()
+                        },
+                        teleported: (shape == 1).then_some(tick),
                     })
                     .collect(),
                 moved: moved.into_iter().map(|(e, p, v, a)| BodyMotion(e, f3(p), f3(v), a)).collect(),
@@ -328,6 +347,7 @@ fn state_frame() -> impl Strategy<Value = ServerMessage> {
                         })
                         .collect(),
                     class: (frame % 2 == 0).then_some((frame % 5) as u16),
+                    teleported: (frame % 4 == 1).then_some(tick),
                 }),
             })
         })

@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// impact: an authoritative collision server for multiplayer games.
-#[derive(Parser, Debug)]
+#[derive(Parser, Debug, Clone)]
 #[command(version, about)]
 struct Args {
     /// Scene file (TOML; see SCENES.md). Repeat it to serve several worlds from one process (one
@@ -107,6 +107,14 @@ struct Args {
     /// (PROTOCOL.md, "Game logic"). Without --users, anyone can claim the id: for development.
     #[arg(long = "logic-client", value_name = "CLIENT")]
     logic_clients: Vec<u32>,
+    /// Game logic may open up to this many worlds at run time (a match starting), from the
+    /// started scenes (by file name) and --scene-dir's; 0: none (game logic may still close
+    /// one). Give it to one server process per deployment.
+    #[arg(long, default_value_t = 0)]
+    open_worlds: usize,
+    /// A directory of scenes game logic may open by name (`{name}.toml`), with --open-worlds.
+    #[arg(long, requires = "open_worlds")]
+    scene_dir: Option<PathBuf>,
     /// With --print-acl: where the router's dictionary file (one `name:password` per line) is.
     #[arg(long, default_value = "users.dict")]
     dictionary_path: String,
@@ -327,60 +335,82 @@ fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>, pool:
         }
         _ => None,
     };
+    // The options of a world, started now or opened by game logic later.
+    let opts_for = {
+        let (a, users, pool, metrics) = (args.clone(), users.clone(), pool.clone(), metrics.clone());
+        move |scene: &Scene| {
+            let mut rollback = RollbackConfig::for_world(&scene.world);
+            rollback.selective = a.selective;
+            rollback.self_check_ticks = a.self_check;
+            rollback.stale = if a.stale == "clamp" { StalePolicy::Clamp } else { StalePolicy::Reject };
+            ServerOptions {
+                listen: listen_endpoints(&a),
+                connect: a.connect.clone(),
+                zenoh_config: a.zenoh_config.clone(),
+                encoding: a.encoding,
+                rollback: Some(rollback),
+                inputs_per_client_per_s: a.rate_limit,
+                max_ticks: a.max_ticks,
+                verbose: !a.quiet,
+                users: users.clone(),
+                logic_clients: a.logic_clients.iter().map(|&c| impact_protocol::ClientId(c)).collect(),
+                record: a.record.as_ref().map(|r| PathBuf::from(r.replace("{world}", scene.name.as_str()))),
+                standby: a.standby,
+                state: state.clone(),
+                metrics: metrics.clone(),
+                pool: pool.clone(),
+                ..ServerOptions::default()
+            }
+        }
+    };
     let mut worlds = Vec::new();
+    let mut named = std::collections::BTreeMap::new();
     for (scene, path) in scenes {
         let plan = Plan::for_world(&scene.world);
-        let mut rollback = RollbackConfig::for_world(&scene.world);
-        rollback.selective = args.selective;
-        rollback.self_check_ticks = args.self_check;
-        rollback.stale = if args.stale == "clamp" { StalePolicy::Clamp } else { StalePolicy::Reject };
         println!("impact-server: {}{}", describe(&scene, &path), if args.standby { " (standby)" } else { "" });
         println!("{plan}");
         println!("  core threads    {} (--threads; results do not depend on it)", pool.threads());
-        let opts = ServerOptions {
-            listen: listen_endpoints(args),
-            connect: args.connect.clone(),
-            zenoh_config: args.zenoh_config.clone(),
-            encoding: args.encoding,
-            rollback: Some(rollback),
-            inputs_per_client_per_s: args.rate_limit,
-            max_ticks: args.max_ticks,
-            verbose: !args.quiet,
-            users: users.clone(),
-            logic_clients: args.logic_clients.iter().map(|&c| impact_protocol::ClientId(c)).collect(),
-            record: args.record.as_ref().map(|r| PathBuf::from(r.replace("{world}", scene.name.as_str()))),
-            standby: args.standby,
-            state: state.clone(),
-            metrics: metrics.clone(),
-            pool: pool.clone(),
-            ..ServerOptions::default()
-        };
+        if let Some(stem) = path.file_stem().and_then(|s| s.to_str()) {
+            named.insert(stem.to_string(), path.clone());
+        }
+        let opts = opts_for(&scene);
         worlds.push((scene, opts));
+    }
+    if args.open_worlds > 0 && args.record.as_ref().is_some_and(|r| !r.contains("{world}")) {
+        bail!("--record with --open-worlds: the path must contain {{world}} (each world records its own)");
     }
     let names: Vec<String> = worlds.iter().map(|(s, _)| s.name.to_string()).collect();
     let listen = match worlds.first().map(|(_, o)| o.listen.join(", ")).unwrap_or_default() {
         l if !l.is_empty() => l,
         _ => "what the Zenoh configuration file says".to_string(),
     };
-    let mut handles = runtime::start_worlds(worlds)?;
+    let loader_args = args.clone();
+    let host = runtime::HostOptions {
+        open_worlds: args.open_worlds,
+        scenes: named,
+        scene_dir: args.scene_dir.clone(),
+        load: std::sync::Arc::new(move |p: &Path| load_scene(p, &loader_args).map_err(|e| format!("{e:#}"))),
+        options: std::sync::Arc::new(opts_for),
+    };
+    let host = runtime::Host::start(worlds, host)?;
     let keys: Vec<String> = names.iter().map(|n| format!("impact/v1/{n}/...")).collect();
     println!("listening on {listen} as {}  (Ctrl-C to stop)", keys.join(", "));
+    if args.open_worlds > 0 {
+        let dir = args.scene_dir.as_ref().map_or(String::new(), |d| format!(" and {}/*.toml", d.display()));
+        println!("game logic may open up to {} worlds from the scenes above{dir}", args.open_worlds);
+    }
     if !args.connect.is_empty() {
         println!("connecting to {}", args.connect.join(", "));
     }
     if let Some(u) = &users {
         println!("access control: {} users, default deny (user/password authentication required)", u.users.len());
     }
-    let flags: Vec<_> = handles.iter().map(|h| h.stop_flag()).collect();
-    ctrlc::set_handler(move || {
-        for f in &flags {
-            f.store(true, std::sync::atomic::Ordering::SeqCst);
-        }
-    })
-    .context("installing the Ctrl-C handler")?;
-    for h in &mut handles {
-        let summary = h.join();
-        println!("world {} stopped: final confirmed events published\n{summary}", h.world);
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let flag = stop.clone();
+    ctrlc::set_handler(move || flag.store(true, std::sync::atomic::Ordering::SeqCst))
+        .context("installing the Ctrl-C handler")?;
+    for (world, summary) in host.run_until(&stop) {
+        println!("world {world} stopped: final confirmed events published\n{summary}");
     }
     Ok(())
 }

@@ -137,6 +137,8 @@ pub fn checkpoint_world(w: &World) -> Result<Checkpoint, String> {
                 owner: b.owner[i],
                 asleep: b.asleep[i],
                 still_ticks: b.still_ticks[i],
+                game: b.game[i].clone(),
+                teleported: b.teleported[i],
             })
         })
         .collect::<Result<_, String>>()?;
@@ -238,6 +240,12 @@ pub fn restore_world(scene: &World, c: &Checkpoint) -> Result<World, String> {
         );
         w.bodies.asleep[i] = b.asleep;
         w.bodies.still_ticks[i] = b.still_ticks;
+        if !b.game.is_empty() {
+            w.bodies.set_game(i, b.game.clone());
+        }
+        if let Some(t) = b.teleported {
+            w.bodies.set_teleported(i, t);
+        }
     }
     w.touching = c
         .touching

@@ -51,7 +51,8 @@ fn entities(input: &TickInput, frame: &Frame, out: &mut BTreeSet<EntityId>) {
             Action::SpawnProjectile { .. }
             | Action::Spawn { .. }
             | Action::Teleport { .. }
-            | Action::SetClass { .. } => {}
+            | Action::SetClass { .. }
+            | Action::SetState { .. } => {}
         }
     }
 }
@@ -206,7 +207,8 @@ pub fn resimulate(s: &mut Session, from: Tick, adv: &mut Advance) -> bool {
         for input in &f.inputs {
             // A rewound ray reads a past world the sub-world does not hold: the full path.
             // A spawn adds a body the old run never had, a teleport moves one where its path
-            // never went, a class change alters every rule it meets: no reach holds them.
+            // never went, a class change alters every rule it meets: no reach holds them. Only
+            // motion is copied back from the sub-world, not a game state: that too.
             let unbounded = |a: &Action| {
                 matches!(
                     a,
@@ -214,6 +216,7 @@ pub fn resimulate(s: &mut Session, from: Tick, adv: &mut Advance) -> bool {
                         | Action::Spawn { .. }
                         | Action::Teleport { .. }
                         | Action::SetClass { .. }
+                        | Action::SetState { .. }
                 )
             };
             if !input.rewound.is_empty() || input.actions.iter().any(unbounded) {

@@ -152,7 +152,8 @@ impl Users {
     }
 
     /// The `access_control` section of a Zenoh configuration enforcing the rules above. Four
-    /// rules, a subject and a policy per user, plus six shared rules (and two for `[[server]]`s).
+    /// rules (eight for game logic), a subject and a policy per user, plus seven shared rules (and
+    /// two for `[[server]]`s).
     pub fn acl(&self) -> Value {
         let all = |p: KeyPattern| p.any_world();
         let own = |p: KeyPattern, c: u32| p.pattern.replace("{world}", "*").replace("{client}", &c.to_string());
@@ -183,10 +184,20 @@ impl Users {
             // find no route: that the server subscribes to inputs and answers queries is public.
             rule("server-inputs".into(), vec![all(keys::INPUT)], &["declare_subscriber"], "egress"),
             rule("server-queries".into(), queries, &["declare_queryable"], "egress"),
+            // That servers answer world commands is public too; only game logic may send one.
+            rule("server-worlds".into(), vec![all(keys::WORLD_COMMAND)], &["declare_queryable"], "egress"),
             rule("peer-in".into(), everything.clone(), &every_message, "ingress"),
             rule("peer-out".into(), everything, &every_message, "egress"),
         ];
-        let shared = ["public-subscribe", "public-receive", "query", "query-reply", "server-inputs", "server-queries"];
+        let shared = [
+            "public-subscribe",
+            "public-receive",
+            "query",
+            "query-reply",
+            "server-inputs",
+            "server-queries",
+            "server-worlds",
+        ];
         let mut subjects = Vec::new();
         let mut policies = Vec::new();
         for u in &self.users {
@@ -201,11 +212,15 @@ impl Users {
                 let every = vec![format!("impact/{}/*/client/*/**", keys::VERSION)];
                 rules.push(rule(id("logic-subscribe"), every.clone(), &["declare_subscriber"], "ingress"));
                 rules.push(rule(id("logic-receive"), every, &["put"], "egress"));
+                // Its own world commands (open and close a world), and their answers.
+                let worlds = vec![own(keys::WORLD_COMMAND, c)];
+                rules.push(rule(id("logic-worlds"), worlds.clone(), &["query"], "ingress"));
+                rules.push(rule(id("logic-worlds-reply"), worlds, &["reply"], "egress"));
             }
             subjects.push(json!({"id": format!("user-{}", u.name), "usernames": [u.name]}));
             let mut own_rules: Vec<String> = ["input", "presence", "subscribe", "receive"].map(id).to_vec();
             if u.role == Role::Logic {
-                own_rules.extend(["logic-subscribe", "logic-receive"].map(id));
+                own_rules.extend(["logic-subscribe", "logic-receive", "logic-worlds", "logic-worlds-reply"].map(id));
             }
             own_rules.extend(shared.iter().map(|s| s.to_string()));
             policies.push(json!({"rules": own_rules, "subjects": [format!("user-{}", u.name)]}));
@@ -347,7 +362,7 @@ mod tests {
         assert!(dict.path.exists());
         let acl = u.acl();
         assert_eq!(acl["default_permission"], "deny");
-        assert_eq!(acl["rules"].as_array().unwrap().len(), 8 + 4 * 2);
+        assert_eq!(acl["rules"].as_array().unwrap().len(), 9 + 4 * 2);
         assert_eq!(acl["policies"].as_array().unwrap().len(), 3);
         let path = dict.path.clone();
         drop(dict);

@@ -29,6 +29,8 @@ mod zenoh_config;
 
 pub use error::RuntimeError;
 pub use metrics::Metrics;
-pub use server::{start, start_worlds, ServerHandle, ServerOptions, Summary};
+pub use server::{
+    start, start_worlds, Host, HostOptions, SceneLoader, ServerHandle, ServerOptions, Summary, WorldOptions,
+};
 pub use state::StateOptions;
 pub use zenoh_config::zenoh_config;

@@ -20,12 +20,14 @@ use zenoh::Wait;
 
 mod answer;
 mod capture;
+mod host;
 mod ingress;
 mod standby;
 mod stats;
 mod summary;
 mod tick;
 
+pub use host::{Host, HostOptions, SceneLoader, WorldOptions};
 use ingress::declare_primary;
 pub use summary::Summary;
 use tick::TickLoop;
@@ -107,6 +109,7 @@ impl Default for ServerOptions {
 #[derive(Debug)]
 pub struct ServerHandle {
     stop: Arc<AtomicBool>,
+    shared: Arc<Shared>,
     thread: Option<JoinHandle<Summary>>,
     /// The world's name.
     pub world: WorldId,
@@ -117,6 +120,21 @@ impl ServerHandle {
     pub fn stop(mut self) -> Summary {
         self.stop.store(true, Ordering::SeqCst);
         self.join()
+    }
+
+    /// Closes the world for good (game logic ended the match): every client in it is told
+    /// ([`ServerMessage::Closed`](impact_protocol::ServerMessage::Closed), with `next` and
+    /// `reason`) after its last confirmed events; then it stops. Returns its summary.
+    pub fn close(self, next: Option<WorldId>, reason: String) -> Summary {
+        if let Ok(mut c) = self.shared.closing.lock() {
+            *c = Some((next, reason));
+        }
+        self.stop()
+    }
+
+    /// Whether its tick thread has ended (`max_ticks`, or stopped).
+    pub fn finished(&self) -> bool {
+        self.thread.as_ref().is_none_or(JoinHandle::is_finished)
     }
 
     /// Waits for the server to stop by itself (`max_ticks`) or by the stop flag.
@@ -178,11 +196,13 @@ struct ClientState {
 }
 
 /// Counters shared with the callbacks.
-#[derive(Default)]
+#[derive(Debug, Default)]
 struct Shared {
     rejected_in_callbacks: [AtomicU64; RejectReason::ALL.len()],
     egress_dropped: AtomicU64,
     egress_failed: AtomicU64,
+    /// Set by [`ServerHandle::close`]: the clients are told, with where to go next and why.
+    closing: std::sync::Mutex<Option<(Option<WorldId>, String)>>,
 }
 
 fn reason_index(r: RejectReason) -> usize {
@@ -267,6 +287,7 @@ struct Primary {
 fn start_world(zs: &Arc<Closer>, scene: Scene, opts: ServerOptions) -> Result<ServerHandle, RuntimeError> {
     let world_id = scene.name.clone();
     let shared = Arc::new(Shared::default());
+    let handle_shared = shared.clone();
     let (egress_tx, egress_rx) = sync_channel::<Out>(opts.egress_capacity);
     let (ingress_tx, ingress_rx) = sync_channel::<Ingress>(opts.ingress_capacity);
     let (control_tx, control_rx) = sync_channel::<Control>(opts.max_clients.max(16) * 2);
@@ -355,5 +376,5 @@ fn start_world(zs: &Arc<Closer>, scene: Scene, opts: ServerOptions) -> Result<Se
             summary
         })
         .map_err(|e| RuntimeError::Thread(e.to_string()))?;
-    Ok(ServerHandle { stop, thread: Some(thread), world: world_id })
+    Ok(ServerHandle { stop, shared: handle_shared, thread: Some(thread), world: world_id })
 }

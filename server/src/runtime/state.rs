@@ -17,7 +17,7 @@
 use glam::DVec3;
 use impact_core::sim::world::{BodyTable, SimConfig, StaticWorld, Touch};
 use impact_protocol::{
-    encode, keys, AvatarState, AvatarTouch, BodyInfo, BodyMotion, BodyShape, ClientId, Encoding, EntityId,
+    encode, keys, AvatarState, AvatarTouch, BodyInfo, BodyMotion, BodyShape, ClientId, Encoding, EntityId, GameState,
     ServerMessage, StateFrame, Tick, WorldId,
 };
 use std::collections::BTreeMap;
@@ -136,6 +136,9 @@ struct Entry {
     lo: DVec3,
     hi: DVec3,
     src: Src,
+    /// What its [`BodyInfo`] says that can change (class, game state), as a hash: a receiver
+    /// that holds another is sent the info again.
+    info: u64,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -234,6 +237,8 @@ struct Held {
 #[derive(Clone, Copy, Debug)]
 struct HeldBody {
     motion: BodyMotion,
+    /// The [`Entry::info`] it was sent.
+    info: u64,
     /// Frames it has changed without being sent.
     waited: u32,
 }
@@ -400,6 +405,7 @@ impl Streams {
             lo: st.aabb[i].min,
             hi: st.aabb[i].max,
             src: Src::Static(i),
+            info: 0,
         });
         let terrain = st.terrain.as_ref().map(|t| {
             let b = t.field.aabb();
@@ -408,6 +414,7 @@ impl Streams {
                 lo: b.min,
                 hi: b.max,
                 src: Src::Terrain,
+                info: 0,
             }
         });
         let t = &cap.table;
@@ -416,6 +423,7 @@ impl Streams {
             lo: cap.pos[i] + t.aabb_lo[i],
             hi: cap.pos[i] + t.aabb_hi[i],
             src: Src::Dynamic(i),
+            info: info_key(t.class[i], &t.game[i], t.teleported[i]),
         });
         self.entries.extend(statics.chain(terrain).chain(dynamic));
         self.entries.sort_by_key(|e| e.motion.0);
@@ -481,6 +489,22 @@ impl Streams {
     }
 }
 
+/// What can change in a body's info, as a hash (see [`Entry::info`]).
+fn info_key(class: impact_core::sim::world::ClassId, game: &GameState, teleported: Option<Tick>) -> u64 {
+    use std::hash::{Hash, Hasher};
+    if game.is_empty() && teleported.is_none() {
+        return u64::from(class.0);
+    }
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    class.0.hash(&mut h);
+    teleported.map(|t| t.0).hash(&mut h);
+    for (k, v) in &game.0 {
+        k.hash(&mut h);
+        v.to_bits().hash(&mut h);
+    }
+    h.finish() | 1 << 63
+}
+
 /// A body's class id.
 fn class_of(cap: &Capture, e: &Entry) -> Option<impact_core::sim::world::ClassId> {
     match e.src {
@@ -519,6 +543,14 @@ fn info(cap: &Capture, e: &Entry) -> BodyInfo {
         fixed: !matches!(e.src, Src::Dynamic(_)),
         rotation,
         local_shape: shape.and_then(|(s, _)| primitive(s)),
+        state: match e.src {
+            Src::Dynamic(i) => cap.table.game[i].clone(),
+            _ => GameState::default(),
+        },
+        teleported: match e.src {
+            Src::Dynamic(i) => cap.table.teleported[i],
+            _ => None,
+        },
     }
 }
 
@@ -555,6 +587,7 @@ fn avatar_state(cap: &Capture, avatar: EntityId) -> Option<AvatarState> {
         still_ticks: cap.still[i],
         touching,
         class: Some(cap.table.class[i].0),
+        teleported: cap.table.teleported[i],
     })
 }
 
@@ -612,6 +645,9 @@ fn build(
                 let now = entries[i as usize].motion;
                 if full {
                     wants.push((d, b, i, Want::Enter));
+                } else if old[h].info != entries[i as usize].info {
+                    // Its class or game state changed: its info again, from the budget first.
+                    wants.push((0.0, b, i, Want::Enter));
                 } else if changed(&old[h].motion, &now) {
                     let waited = old[h].waited;
                     wants.push((d / (1.0 + f64::from(waited)), b, i, Want::Move(keep.len())));
@@ -653,7 +689,7 @@ fn build(
     for (_, _, i, want) in wants {
         let e = &entries[i as usize];
         let cost = match want {
-            Want::Enter => INFO_BYTES + class_name(cap, e).len() + MOTION_BYTES,
+            Want::Enter => info_bytes(cap, e) + MOTION_BYTES,
             Want::Move(_) => MOTION_BYTES,
         };
         if let Some(b) = budget {
@@ -668,10 +704,10 @@ fn build(
         spend += cost;
         frame.moved.push(e.motion);
         match want {
-            Want::Move(k) => keep[k] = HeldBody { motion: e.motion, waited: 0 },
+            Want::Move(k) => keep[k] = HeldBody { motion: e.motion, info: keep[k].info, waited: 0 },
             Want::Enter => {
                 frame.entered.push(info(cap, e));
-                entered.push(HeldBody { motion: e.motion, waited: 0 });
+                entered.push(HeldBody { motion: e.motion, info: e.info, waited: 0 });
             }
         }
     }
@@ -683,9 +719,23 @@ fn build(
     frame
 }
 
+/// The bytes a body's info is budgeted at.
+fn info_bytes(cap: &Capture, e: &Entry) -> usize {
+    let state = match e.src {
+        Src::Dynamic(i) => state_bytes(&cap.table.game[i]),
+        _ => 0,
+    };
+    INFO_BYTES + class_name(cap, e).len() + state
+}
+
+/// A game state's MessagePack size at most: each name's string and a float.
+fn state_bytes(g: &GameState) -> usize {
+    g.0.keys().map(|k| k.len() + 2 + 9).sum::<usize>() + 8
+}
+
 /// The budgeted size of a frame: at least its MessagePack size.
 fn estimate(f: &StateFrame) -> usize {
-    let infos: usize = f.entered.iter().map(|i| INFO_BYTES + i.class.len()).sum();
+    let infos: usize = f.entered.iter().map(|i| INFO_BYTES + i.class.len() + state_bytes(&i.state)).sum();
     let avatar = f.avatar.as_ref().map_or(0, |a| AVATAR_BYTES + a.touching.len() * TOUCH_BYTES);
     FRAME_BYTES + infos + f.moved.len() * MOTION_BYTES + f.left.len() * LEFT_BYTES + avatar
 }

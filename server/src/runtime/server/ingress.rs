@@ -70,6 +70,10 @@ pub(super) fn declare_primary(
                         }
                         return;
                     }
+                    Ok(ClientMessage::World(_)) => {
+                        let detail = format!("a world command is a query on {}", keys::WORLD_COMMAND.pattern);
+                        return refuse(client, None, RejectReason::Malformed, detail);
+                    }
                     Ok(ClientMessage::Ping(ping)) => {
                         // A probe lost to a full queue is one the client sends again.
                         if ping.client == client {

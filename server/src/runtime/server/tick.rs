@@ -15,7 +15,7 @@ use impact_core::scene::{avatar_position, AvatarRule, Scene};
 use impact_core::sim::{Plan, SystemAction};
 use impact_protocol::{
     encode, keys, Admitted, ClientId, CollisionEvent, Encoding, EntityId, EventBatch, InputAck, InputReject,
-    LoggedInput, RejectReason, ServerMessage, Tick, TimePing, TimePong, Welcome, WorldId,
+    LoggedInput, RejectReason, ServerMessage, Tick, TimePing, TimePong, Welcome, WorldClosed, WorldId,
 };
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -250,6 +250,15 @@ impl TickLoop {
                 r.write(&entry);
             }
             self.put_log(keys::LOG.key(&self.world, None), &ServerMessage::Log(entry));
+        }
+        // Closed for good: every client is told, after the last events.
+        let closing = self.shared.closing.lock().ok().and_then(|mut c| c.take());
+        if let Some((next, reason)) = closing {
+            let tick = self.session.now();
+            let notice = ServerMessage::Closed(WorldClosed { world: self.world.clone(), tick, next, reason });
+            for c in self.clients.values() {
+                self.put(c.ack_key.clone(), &notice, c.encoding);
+            }
         }
         self.finish()
     }
