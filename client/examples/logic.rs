@@ -124,7 +124,14 @@ impl Match {
             ConnectOptions { state: false, scene: false, ..ConnectOptions::new(a.connect.clone(), world.clone(), me) };
         let conn = Connection::open(&opts)?;
         let every_ack = format!("impact/{}/{}/client/*/ack", impact_protocol::keys::VERSION, world.as_str());
-        let heard = conn.zenoh().declare_subscriber(every_ack).wait().map_err(|e| e.to_string())?;
+        // Every player's answers: a second of 300 busy players and more. A full channel would
+        // hold up the session's other traffic (a world command's answer among it) until drained.
+        let heard = conn
+            .zenoh()
+            .declare_subscriber(every_ack)
+            .with(zenoh::handlers::FifoChannel::new(1 << 16))
+            .wait()
+            .map_err(|e| e.to_string())?;
         let rules = Session::new(SessionConfig { predict: None, ..SessionConfig::new(me) });
         Ok(Match { world, conn, rules, heard, players: BTreeMap::new() })
     }
@@ -240,7 +247,7 @@ fn run(a: &Args) -> Result<(), Error> {
 fn next_match(a: &Args, game: &Match, n: u64) -> Result<Match, Error> {
     let me = ClientId(a.client);
     let next = WorldId::new(format!("{}-{n}", a.world))?;
-    let t = Duration::from_secs(5);
+    let t = Duration::from_secs(10);
     let open = WorldCommand::Open { scene: a.scene.clone() };
     match world_command(game.conn.zenoh(), &next, me, open, t)?.outcome {
         WorldOutcome::Opened { .. } => {}

@@ -129,6 +129,7 @@ impl ServerHandle {
         if let Ok(mut c) = self.shared.closing.lock() {
             *c = Some((next, reason));
         }
+        self.shared.closed.store(true, Ordering::SeqCst);
         self.stop()
     }
 
@@ -203,6 +204,8 @@ struct Shared {
     egress_failed: AtomicU64,
     /// Set by [`ServerHandle::close`]: the clients are told, with where to go next and why.
     closing: std::sync::Mutex<Option<(Option<WorldId>, String)>>,
+    /// Closed for good ([`ServerHandle::close`]): inputs are no longer answered.
+    closed: AtomicBool,
 }
 
 fn reason_index(r: RejectReason) -> usize {

@@ -241,8 +241,12 @@ impl Running {
             WorldCommand::Open { scene } => Some(self.open(world, &scene)),
             WorldCommand::Close { next, reason } => {
                 let hosted = lock(&self.worlds).remove(&world)?;
+                let t0 = std::time::Instant::now();
                 let summary = hosted.handle.close(next, reason);
-                eprintln!("impact-server: world {world} closed by game logic (client {client})\n{summary}");
+                let ms = t0.elapsed().as_secs_f64() * 1e3;
+                eprintln!(
+                    "impact-server: world {world} closed by game logic (client {client}) in {ms:.0} ms\n{summary}"
+                );
                 Some(WorldOutcome::Closed { ticks: summary.ticks })
             }
         }

@@ -24,6 +24,11 @@ pub(super) fn declare_primary(
         let default_enc = wiring.encoding;
         zs.declare_subscriber(keys::INPUT.any_client(world_id))
             .callback(move |sample| {
+                // A world closed for good answers nothing more: its clients were told, and what
+                // they sent after is void (PROTOCOL.md, "Worlds at run time").
+                if shared.closed.load(Ordering::Relaxed) {
+                    return;
+                }
                 let key = sample.key_expr().as_str().to_string();
                 let from_key = keys::INPUT.parse(&key).ok().and_then(|(_, c)| c);
                 let tag = sample.encoding().to_string();
