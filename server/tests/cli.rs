@@ -73,3 +73,44 @@ fn a_scene_that_cannot_rest_is_told_so_at_load() {
     }
     assert!(stderr.contains("0.003 would work"), "{stderr}");
 }
+
+/// `systemctl stop`, `docker stop` and `kill` send SIGTERM: the server stops as on Ctrl-C, after
+/// its current tick, with its last events confirmed, its recording flushed and its summary
+/// printed, rather than dying mid-write.
+#[test]
+fn sigterm_stops_the_server_in_order() {
+    use std::io::{BufRead, BufReader};
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let record = std::env::temp_dir().join(format!("impact-sigterm-{}.jsonl", std::process::id()));
+    let mut server = Command::new(env!("CARGO_BIN_EXE_impact-server"))
+        .arg("--scene")
+        .arg(impact_core::scene::Scene::bundled_path("arena"))
+        .args(["--listen", &format!("tcp/127.0.0.1:{port}"), "--quiet", "--record"])
+        .arg(&record)
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .expect("impact-server runs");
+    let (tx, rx) = std::sync::mpsc::channel();
+    let out = server.stdout.take().unwrap();
+    std::thread::spawn(move || {
+        for line in BufReader::new(out).lines().map_while(Result::ok) {
+            let _ = tx.send(line);
+        }
+    });
+    let mut seen = Vec::new();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(20);
+    while !seen.iter().any(|l: &String| l.starts_with("listening on")) {
+        let left = deadline.saturating_duration_since(std::time::Instant::now());
+        seen.push(rx.recv_timeout(left).unwrap_or_else(|_| panic!("not listening: {seen:?}")));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(500));
+    let killed = Command::new("kill").args(["-TERM", &server.id().to_string()]).status().unwrap();
+    assert!(killed.success());
+    let status = server.wait().unwrap();
+    seen.extend(rx.iter());
+    assert!(status.success(), "{status:?}: {seen:?}");
+    assert!(seen.iter().any(|l| l.contains("stopped: final confirmed events published")), "{seen:?}");
+    let lines = std::fs::read_to_string(&record).unwrap().lines().count();
+    assert!(lines > 10, "the recording holds the ticks it ran: {lines} lines");
+    let _ = std::fs::remove_file(&record);
+}

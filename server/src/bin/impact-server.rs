@@ -394,7 +394,7 @@ fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>, pool:
     };
     let host = runtime::Host::start(worlds, host)?;
     let keys: Vec<String> = names.iter().map(|n| format!("impact/v1/{n}/...")).collect();
-    println!("listening on {listen} as {}  (Ctrl-C to stop)", keys.join(", "));
+    println!("listening on {listen} as {}  (Ctrl-C or SIGTERM to stop)", keys.join(", "));
     if args.open_worlds > 0 {
         let dir = args.scene_dir.as_ref().map_or(String::new(), |d| format!(" and {}/*.toml", d.display()));
         println!("game logic may open up to {} worlds from the scenes above{dir}", args.open_worlds);
