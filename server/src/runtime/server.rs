@@ -258,15 +258,20 @@ pub fn start(scene: Scene, opts: ServerOptions) -> Result<ServerHandle, RuntimeE
 /// thread per world. Each world has its own options (record file, standby); the session's
 /// (listen, connect, users) are the first world's.
 pub fn start_worlds(worlds: Vec<(Scene, ServerOptions)>) -> Result<Vec<ServerHandle>, RuntimeError> {
+    let Some((_, first)) = worlds.first() else { return Ok(Vec::new()) };
+    let zs = open_session(first)?;
+    start_on(&zs, worlds)
+}
+
+/// Starts `worlds` on the session `zs`, once their names are known to differ.
+fn start_on(zs: &Arc<Closer>, worlds: Vec<(Scene, ServerOptions)>) -> Result<Vec<ServerHandle>, RuntimeError> {
     let mut names = std::collections::BTreeSet::new();
     for (scene, _) in &worlds {
         if !names.insert(scene.name.clone()) {
             return Err(RuntimeError::Config(format!("world {} is given twice", scene.name)));
         }
     }
-    let Some((_, first)) = worlds.first() else { return Ok(Vec::new()) };
-    let zs = open_session(first)?;
-    worlds.into_iter().map(|(scene, opts)| start_world(&zs, scene, opts)).collect()
+    worlds.into_iter().map(|(scene, opts)| start_world(zs, scene, opts)).collect()
 }
 
 /// What a world's callbacks send into its tick thread, kept to declare the primary's

@@ -7,7 +7,7 @@
 //! world. Opening is bounded (`open_worlds` at once); a world that is not here is not answered
 //! (a host that runs another process's world says nothing, so only the owner answers a close).
 
-use super::{open_session, start_world, Closer, ServerHandle, ServerOptions, Summary};
+use super::{open_session, start_on, start_world, Closer, ServerHandle, ServerOptions, Summary};
 use crate::runtime::error::RuntimeError;
 use impact_core::scene::Scene;
 use impact_protocol::limits::MAX_CLIENT_MESSAGE_BYTES;
@@ -99,16 +99,9 @@ impl Host {
         };
         let first = first.clone();
         let zs = open_session(&first)?;
-        let mut names = BTreeSet::new();
-        let mut running = BTreeMap::new();
-        for (scene, opts) in worlds {
-            if !names.insert(scene.name.clone()) {
-                return Err(RuntimeError::Config(format!("world {} is given twice", scene.name)));
-            }
-            let name = scene.name.clone();
-            running.insert(name, Hosted { handle: start_world(&zs, scene, opts)?, opened: false });
-        }
-        let worlds = Arc::new(Mutex::new(running));
+        let running =
+            start_on(&zs, worlds)?.into_iter().map(|h| (h.world.clone(), Hosted { handle: h, opened: false }));
+        let worlds = Arc::new(Mutex::new(running.collect::<BTreeMap<_, _>>()));
         let stop = Arc::new(AtomicBool::new(false));
         let (queryable, thread) = if first.standby {
             (None, None)
