@@ -20,8 +20,7 @@ use crate::timing::{Margins, Timing};
 use hdrhistogram::Histogram;
 use impact_client::netsim::{DelayLine, Link, Rng};
 use impact_client::predict::{PredictConfig, Predictor};
-use impact_client::remote::DrawnBody;
-use impact_client::transport::decode_server;
+use impact_client::report::{DrawCheck, CHECK_EVERY};
 use impact_client::{Outcome, Session, SessionConfig, Status};
 use impact_protocol::{
     keys, Action, ClientId, ClientMessage, Encoding, EntityId, RejectReason, ServerMessage, Tick, WorldId,
@@ -484,18 +483,6 @@ impl Wiring {
     }
 }
 
-/// A world drawn by every game client at one tick, awaiting the server's positions at that tick
-/// (`query/state?tick=T`): the interpolation error.
-struct Check {
-    tick: Tick,
-    /// What each game client drew at `tick`.
-    drawn: Vec<Vec<DrawnBody>>,
-    replies: zenoh::handlers::FifoChannelHandler<zenoh::query::Reply>,
-}
-
-/// How often the drawn worlds are checked against the server's.
-const CHECK_EVERY: Duration = Duration::from_millis(500);
-
 /// The run loop's state: the clients, both delay lines, and the figures gathered.
 struct Run<'a> {
     cfg: &'a LoadConfig,
@@ -518,7 +505,7 @@ struct Run<'a> {
     load_end: Instant,
     server_stopped: bool,
     input_keys: Vec<String>,
-    checks: Vec<Check>,
+    checks: Vec<DrawCheck>,
     next_check: Instant,
     /// Remote bodies as drawn minus as the server had them, m, and whether each was steady.
     interpolation: Vec<(f64, bool)>,
@@ -677,11 +664,6 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
     wiring.close();
     let _ = std::io::stderr().flush();
     Ok(r)
-}
-
-/// Distance between two points, m.
-fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
-    (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt()
 }
 
 impl Run<'_> {
@@ -880,20 +862,19 @@ impl Run<'_> {
         self.next_check += CHECK_EVERY;
         let render = self.clients.iter().filter(|c| c.game).find_map(|c| c.session.render_tick(now));
         let Some(tick) = render.map(|r| Tick(r.floor().max(0.0) as u32)) else { return };
-        let drawn = self
+        let mut drawn = Vec::new();
+        let mut one = Vec::new();
+        for remote in self
             .clients
             .iter()
             .filter(|c| c.game && c.session.stats().state_frames > 0)
             .filter_map(|c| c.session.remote())
-            .map(|remote| {
-                let mut v = Vec::new();
-                remote.draw(f64::from(tick.0), &mut v);
-                v
-            })
-            .collect();
-        let key = format!("{}?tick={}", keys::QUERY_STATE.key(&self.world, None), tick.0);
-        if let Ok(replies) = wiring.sessions[0].get(key).timeout(Duration::from_secs(2)).wait() {
-            self.checks.push(Check { tick, drawn, replies });
+        {
+            remote.draw(f64::from(tick.0), &mut one);
+            drawn.append(&mut one);
+        }
+        if let Ok(c) = DrawCheck::ask(&wiring.sessions[0], &self.world, tick, drawn) {
+            self.checks.push(c);
         }
     }
 
@@ -1061,31 +1042,5 @@ impl Run<'_> {
         r.latency_histogram =
             (1..=top).map(|b| (b as f64 * 5.0, latency.count_between((b - 1) * bucket + 1, b * bucket))).collect();
         r
-    }
-}
-
-impl Check {
-    /// Compares what was drawn with the server's answer once it came (true: done).
-    fn compare(&self, errors: &mut Vec<(f64, bool)>) -> bool {
-        let reply = match self.replies.try_recv() {
-            Ok(Some(reply)) => reply,
-            Ok(None) => return false,
-            Err(_) => return true,
-        };
-        let Ok(ServerMessage::Snapshot(s)) =
-            reply.result().map_err(|_| ()).and_then(|s| decode_server(s).map_err(|_| ()))
-        else {
-            return true;
-        };
-        if s.tick != self.tick {
-            return true;
-        }
-        let truth: BTreeMap<_, _> = s.bodies.iter().map(|b| (b.entity, b.position)).collect();
-        for d in self.drawn.iter().flatten() {
-            if let Some(p) = truth.get(&d.entity) {
-                errors.push((distance(d.position, *p), d.steady));
-            }
-        }
-        true
     }
 }

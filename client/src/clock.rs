@@ -124,6 +124,17 @@ impl Clock {
         self.lead
     }
 
+    /// How fast the ticks an input is stamped with advance against the server's ticks: `1 +
+    /// DILATION` while an ahead clock's lead grows towards the recommendation, `1 - DILATION`
+    /// while it shrinks, 1 once reached (and always behind). A game that steps its input loop on a
+    /// fixed timestep of `1 / (tick_hz * rate)` sends one input per stamped tick.
+    pub fn stamp_rate(&self, ahead: bool) -> f64 {
+        match (ahead, self.lead) {
+            (true, Some(lead)) => 1.0 + (self.lead_target - lead).clamp(-DILATION, DILATION),
+            _ => 1.0,
+        }
+    }
+
     /// A `future` reject of an input stamped `tick` at view tick `view`: at its arrival the
     /// server accepted ticks up to `newest`, so the lead it carried (`tick - view`) was too much
     /// by the excess. The lead drops at once to one tick under what would have fitted (a burst of
@@ -189,6 +200,8 @@ mod tests {
         // The round trip shrinks: a lead of 2 is recommended. One second later (64 ticks) the
         // lead has moved 6.4 ticks, not 10.
         c.recommend(2);
+        assert_eq!(c.stamp_rate(true), 1.0 - DILATION, "stamped ticks slow down while the lead shrinks");
+        assert_eq!(c.stamp_rate(false), 1.0);
         let t1 = t0 + Duration::from_secs(1);
         let (tick, view) = c.stamp(true, t1).unwrap();
         assert_eq!(view, Tick(164));
@@ -198,6 +211,7 @@ mod tests {
         assert_eq!(c.stamp(true, t2), Some((Tick(230), Tick(228))));
         assert_eq!(c.stamp(false, t2), Some((Tick(228), Tick(228))));
         assert_eq!(Clock::new().stamp(true, t2), None, "not before the welcome");
+        assert_eq!(c.stamp_rate(true), 1.0, "the lead reached: no dilation");
     }
 
     /// A server that stalled and dropped its backlog is behind the client's clock: the first

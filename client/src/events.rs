@@ -93,11 +93,11 @@ impl EventView {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use impact_protocol::{EntityId, EventStatus, Phase, Response};
 
-    fn event(a: u32, b: u32, toi: f64) -> CollisionEvent {
+    pub(crate) fn event(a: u32, b: u32, toi: f64) -> CollisionEvent {
         CollisionEvent {
             tick: Tick(5),
             toi,

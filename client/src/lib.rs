@@ -19,6 +19,8 @@
 //! - [`session`]: all of the above as one state machine, a client's whole side of the protocol:
 //!   join and welcome, the time-sync exchange, inputs with redundancy, the three views.
 //! - [`transport`] (feature `zenoh`, on by default): the session over Zenoh, the only I/O here.
+//! - [`report`] (feature `zenoh`): how a game played, its drawing checked against the server's
+//!   record, and the one-line summary the examples print; [`bot`]: a scripted player for them.
 //!
 //! A game, in a few lines (`examples/play.rs` is a whole one):
 //!
@@ -60,14 +62,17 @@
 
 #![warn(missing_docs)]
 
+pub mod bot;
 pub mod clock;
 pub mod events;
 pub mod inputs;
 pub mod netsim;
 pub mod predict;
 pub mod remote;
+#[cfg(feature = "zenoh")]
+pub mod report;
 pub mod session;
 #[cfg(feature = "zenoh")]
 pub mod transport;
 
-pub use session::{Answer, InputError, Outcome, Session, SessionConfig, SessionStats, Status};
+pub use session::{Answer, EventNews, InputError, Outcome, Session, SessionConfig, SessionStats, Status};

@@ -110,6 +110,8 @@ pub struct DrawnBody {
     /// same velocity, or its last sample is followed by frames that did not carry it), so it is
     /// drawn where the server had it, up to the f32 of the stream.
     pub steady: bool,
+    /// Asleep in the server's world at the last sample at or before the render tick.
+    pub asleep: bool,
 }
 
 /// What [`RemoteWorld::apply`] did with a frame.
@@ -336,7 +338,8 @@ impl RemoteWorld {
                 }
             }
         };
-        Some(DrawnBody { entity, position, velocity, extrapolated: render_tick > newest, steady })
+        let asleep = after.checked_sub(1).map_or(first.asleep, |k| b.samples[k].asleep);
+        Some(DrawnBody { entity, position, velocity, extrapolated: render_tick > newest, steady, asleep })
     }
 }
 

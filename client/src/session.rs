@@ -22,7 +22,8 @@
 //!
 //! Every buffer is bounded: [`Outbox::DEFAULT_CAPACITY`] inputs awaiting an answer,
 //! [`SessionConfig::redundancy`] inputs for resending, [`MAX_OUTGOING`] messages not yet taken
-//! by the transport, [`MAX_RAY_RESULTS`] ray results not yet taken by the game, and the views'
+//! by the transport, [`MAX_RAY_RESULTS`] ray results, [`MAX_ANSWERS`] answers and
+//! [`MAX_EVENT_NEWS`] event news not yet taken by the game, and the views'
 //! own bounds ([`crate::events::MAX_TICKS`], [`RemoteConfig`]).
 
 use crate::clock::Clock;
@@ -33,8 +34,8 @@ use crate::remote::{DrawnBody, RemoteConfig, RemoteWorld};
 use impact_core::scene::SceneRules;
 use impact_protocol::limits::{MAX_ACTIONS_PER_INPUT, MAX_INPUTS_PER_MESSAGE};
 use impact_protocol::{
-    Action, ClientId, ClientInput, ClientMessage, EntityId, FullFrameRequest, InputBatch, RayResult, RejectReason,
-    SceneDescription, ServerMessage, Tick, TimePing, Welcome, WorldClosed,
+    Action, ClientId, ClientInput, ClientMessage, CollisionEvent, CorrectionBatch, EntityId, FullFrameRequest,
+    InputBatch, RayResult, RejectReason, SceneDescription, ServerMessage, Tick, TimePing, Welcome, WorldClosed,
 };
 use std::collections::{BTreeMap, VecDeque};
 use std::time::{Duration, Instant};
@@ -61,6 +62,28 @@ pub const MAX_RAY_RESULTS: usize = 256;
 
 /// Answers to inputs held for the game at most; past it the oldest is dropped.
 pub const MAX_ANSWERS: usize = 1024;
+
+/// Event news held for the game at most ([`Session::take_event_news`]); past it the oldest is
+/// dropped (a game that never takes them loses nothing else: the event view holds the events).
+pub const MAX_EVENT_NEWS: usize = 4096;
+
+/// What changed in the event view, in arrival order, for a game that reacts to events as they
+/// come (a flash at a contact point, a sound) rather than reading the view a tick at a time.
+#[derive(Clone, Debug, PartialEq)]
+pub enum EventNews {
+    /// A provisional event, as the server first published it.
+    Event(CollisionEvent),
+    /// A re-simulation changed a tick's events: some retracted, amended or added (a game redraws
+    /// what it showed; events match by identity, [`CollisionEvent::key`]).
+    Corrected(CorrectionBatch),
+    /// A tick is final; `matched` says whether the view as it stood equalled the server's record.
+    Confirmed {
+        /// The tick.
+        tick: Tick,
+        /// The view equalled the confirmed batch.
+        matched: bool,
+    },
+}
 
 /// The server's answer to one of the client's inputs ([`Session::take_answers`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -222,6 +245,8 @@ pub struct SessionStats {
     pub full_frames_asked: u64,
     /// Outgoing messages dropped because the transport did not take them.
     pub outgoing_dropped: u64,
+    /// Event news dropped because the game did not take it ([`MAX_EVENT_NEWS`]).
+    pub event_news_dropped: u64,
 }
 
 /// Most prediction errors kept for the figures (about 14 hours of states at 20 Hz); past it the
@@ -289,6 +314,7 @@ pub struct Session {
     outgoing: VecDeque<ClientMessage>,
     rays: VecDeque<RayResult>,
     answers: VecDeque<Answer>,
+    news: VecDeque<EventNews>,
     stats: SessionStats,
     predictor: Option<Predictor>,
     prediction: PredictionStats,
@@ -302,6 +328,8 @@ pub struct Session {
     full_asked: Option<Instant>,
     /// The world's closing notice.
     closed: Option<WorldClosed>,
+    /// When the last message from the server arrived.
+    heard: Option<Instant>,
 }
 
 impl Session {
@@ -324,6 +352,7 @@ impl Session {
             outgoing: VecDeque::new(),
             rays: VecDeque::new(),
             answers: VecDeque::new(),
+            news: VecDeque::new(),
             stats: SessionStats::default(),
             predictor: None,
             prediction: PredictionStats::default(),
@@ -333,6 +362,7 @@ impl Session {
             unclassified: None,
             full_asked: None,
             closed: None,
+            heard: None,
         }
     }
 
@@ -562,6 +592,21 @@ impl Session {
         self.answers.drain(..)
     }
 
+    /// What changed in the event view since the last call, in arrival order (at most
+    /// [`MAX_EVENT_NEWS`]; older news is dropped and counted in
+    /// [`SessionStats::event_news_dropped`]).
+    pub fn take_event_news(&mut self) -> impl Iterator<Item = EventNews> + '_ {
+        self.news.drain(..)
+    }
+
+    fn news(&mut self, n: EventNews) {
+        if self.news.len() >= MAX_EVENT_NEWS {
+            self.news.pop_front();
+            self.stats.event_news_dropped += 1;
+        }
+        self.news.push_back(n);
+    }
+
     fn answered(&mut self, seq: u32, sent: Sent, outcome: Outcome, now: Instant) {
         if let Some(p) = self.predictor.as_mut() {
             match outcome {
@@ -576,6 +621,13 @@ impl Session {
         }
         let round_trip = now.saturating_duration_since(sent.at);
         self.answers.push_back(Answer { seq, tick: sent.tick, sent: sent.at, round_trip, outcome });
+    }
+
+    /// When the last message from the server arrived (`None`: nothing yet). A game tells a
+    /// server gone quiet from here: with the state stream on, or inputs awaiting answers, a
+    /// second of silence is a lost connection or a server failing over.
+    pub fn last_heard(&self) -> Option<Instant> {
+        self.heard
     }
 
     /// What the session counted.
@@ -596,6 +648,7 @@ impl Session {
     /// A message from the server arrived at `now`.
     pub fn receive(&mut self, msg: ServerMessage, now: Instant) {
         let me = self.cfg.client;
+        self.heard = Some(self.heard.map_or(now, |h| h.max(now)));
         match msg {
             ServerMessage::Welcome(w) if w.client == me => self.welcomed(w, now),
             ServerMessage::Pong(p) if p.client == me => {
@@ -657,13 +710,18 @@ impl Session {
                 self.observe(b.tick, now);
                 self.stats.events += b.events.len() as u64;
                 self.events.events(&b);
+                for e in b.events {
+                    self.news(EventNews::Event(e));
+                }
             }
             ServerMessage::Corrections(c) => {
                 self.stats.corrections += 1;
                 self.events.correct(&c);
+                self.news(EventNews::Corrected(c));
             }
             ServerMessage::Confirmed(b) => {
-                self.events.confirm(&b);
+                let matched = self.events.confirm(&b);
+                self.news(EventNews::Confirmed { tick: b.tick, matched });
             }
             ServerMessage::RayResult(r) if r.client == me => {
                 self.stats.ray_results += 1;
@@ -941,6 +999,37 @@ mod tests {
         // A server that remembers more than the client sent: the client's seqs jump past it.
         s.receive(welcome(20), t);
         assert_eq!(s.input(walk(), t), Ok(20));
+    }
+
+    /// Events, corrections and confirmations reach the game as news in arrival order, once each,
+    /// and news the game never takes is bounded.
+    #[test]
+    fn event_news_comes_in_order_once_and_is_bounded() {
+        use impact_protocol::EventBatch;
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig::new(ClientId(7)));
+        s.receive(welcome(0), t0);
+        let e = |toi: f64| CollisionEvent { tick: Tick(101), ..crate::events::tests::event(1, 2, toi) };
+        s.receive(ServerMessage::Events(EventBatch { tick: Tick(101), revision: 0, events: vec![e(0.5)] }), t0);
+        let c =
+            CorrectionBatch { tick: Tick(101), revision: 1, retracted: vec![], amended: vec![e(0.25)], added: vec![] };
+        s.receive(ServerMessage::Corrections(c.clone()), t0);
+        s.receive(ServerMessage::Confirmed(EventBatch { tick: Tick(101), revision: 1, events: vec![e(0.25)] }), t0);
+        let news: Vec<EventNews> = s.take_event_news().collect();
+        assert_eq!(
+            news,
+            [
+                EventNews::Event(e(0.5)),
+                EventNews::Corrected(c),
+                EventNews::Confirmed { tick: Tick(101), matched: true }
+            ]
+        );
+        assert_eq!(s.take_event_news().count(), 0, "taken once");
+        for k in 0..MAX_EVENT_NEWS as u32 + 5 {
+            s.receive(ServerMessage::Events(EventBatch { tick: Tick(200 + k), revision: 0, events: vec![e(0.5)] }), t0);
+        }
+        assert_eq!(s.take_event_news().count(), MAX_EVENT_NEWS);
+        assert_eq!(s.stats().event_news_dropped, 5);
     }
 
     /// Each input's first answer reaches the game once, typed, with its round trip; a second

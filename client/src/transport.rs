@@ -317,6 +317,7 @@ fn ask_scene(session: &::zenoh::Session, world: &WorldId, tx: SyncSender<Inbound
 #[derive(Debug)]
 pub struct Connection {
     session: ::zenoh::Session,
+    world: WorldId,
     input_key: String,
     encoding: Encoding,
     inbox: Receiver<Inbound>,
@@ -410,6 +411,7 @@ impl Connection {
             .map_err(|e| TransportError::Zenoh(format!("declaring the presence: {e}")))?;
         Ok(Connection {
             session,
+            world: w.clone(),
             input_key: keys::INPUT.key(w, c),
             encoding: opts.encoding,
             inbox,
@@ -448,6 +450,11 @@ impl Connection {
     /// Messages dropped because the inbox was full (the game stopped pumping).
     pub fn dropped(&self) -> u64 {
         self.dropped.load(Relaxed)
+    }
+
+    /// The world joined.
+    pub fn world(&self) -> &WorldId {
+        &self.world
     }
 
     /// The Zenoh session, for what the game does beside the protocol (queries, say).

@@ -469,7 +469,7 @@ fn router_server_and_clients_in_separate_network_namespaces() {
         .expect("bash");
     assert!(!direct.status.success(), "the client namespace reached the server directly");
 
-    // Built by `cargo test --workspace` for impact-client-sim's own integration tests.
+    // Built by `cargo test` for impact-client-sim's own integration tests.
     let sim = common::process::binary("impact-sim");
     let out = inside(&c, &sim)
         .args(["--connect", "tcp/10.77.2.1:7447", "--zenoh-mode", "client", "--world", "arena"])

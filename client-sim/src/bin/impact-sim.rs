@@ -94,7 +94,8 @@ struct Args {
     /// Seed for behaviour and the network model.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// The demo: start a server on the arena scene in this process (on a free loopback port),
+    /// The demo: start a server on the arena scene in this process (on loopback, port 7447 when
+    /// free, another otherwise),
     /// drive it with the clients, and print both reports. Defaults to 300 clients for 20 s with
     /// 80 +- 20 ms latency and 1 % loss, state streams on and every client predicting, unless
     /// those flags are given.
@@ -127,43 +128,60 @@ fn prediction(a: &Args) -> Result<(u32, Option<impact_core::scene::SceneRules>)>
     Ok((predict, Some(scene.rules())))
 }
 
+/// The demo's server (the arena, in this process) and live viewer; sets the demo's defaults on
+/// `a` where the flags were not given.
+fn start_demo(
+    a: &mut Args,
+) -> Result<(impact_server::runtime::ServerHandle, (impact_client_sim::web::Viewer, zenoh::Session))> {
+    let given = |name: &str| std::env::args().any(|x| x == name || x.starts_with(&format!("{name}=")));
+    if !given("--clients") {
+        a.clients = 300;
+    }
+    if !given("--duration") {
+        a.duration = Duration::from_secs(20);
+    }
+    if !given("--loss") {
+        a.loss = 0.01;
+    }
+    a.state = true;
+    a.predict = a.predict.or(Some(a.clients));
+    // Zenoh's usual port when it is free, so a game started with its defaults (the Bevy
+    // `arena`, `play`) joins the demo; any free port otherwise.
+    let port = std::net::TcpListener::bind("127.0.0.1:7447")
+        .or_else(|_| std::net::TcpListener::bind("127.0.0.1:0"))?
+        .local_addr()?
+        .port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let scene = impact_core::scene::Scene::load(&impact_core::scene::Scene::bundled_path("arena"))
+        .map_err(anyhow::Error::msg)?;
+    eprintln!(
+        "demo: impact-server on {endpoint}, arena scene ({} balls), 64 Hz, rollback 250 ms",
+        scene.world.bodies.len()
+    );
+    let opts = impact_server::runtime::ServerOptions { listen: vec![endpoint.clone()], ..Default::default() };
+    let server = impact_server::runtime::start(scene, opts)?;
+    a.connect = vec![endpoint.clone()];
+    a.world = "arena".into();
+    std::thread::sleep(Duration::from_millis(300));
+    let session = net::open(std::slice::from_ref(&endpoint), None, None, net::Mode::Peer)?;
+    let world = WorldId::new("arena").map_err(anyhow::Error::msg)?;
+    let viewer = impact_client_sim::web::Viewer::start(&session, &world, &a.viewer)
+        .or_else(|_| impact_client_sim::web::Viewer::start(&session, &world, "127.0.0.1:0"))?;
+    eprintln!("demo: watch it live at {}", viewer.url());
+    eprintln!(
+        "demo: play in it (another terminal): cargo run --release -p impact-bevy --example arena -- --connect {endpoint}"
+    );
+    Ok((server, (viewer, session)))
+}
+
 fn main() -> Result<()> {
     let mut a = Args::parse();
-    let mut demo_server = None;
-    let mut demo_viewer = None;
-    if a.demo {
-        let given = |name: &str| std::env::args().any(|x| x == name || x.starts_with(&format!("{name}=")));
-        if !given("--clients") {
-            a.clients = 300;
-        }
-        if !given("--duration") {
-            a.duration = Duration::from_secs(20);
-        }
-        if !given("--loss") {
-            a.loss = 0.01;
-        }
-        a.state = true;
-        a.predict = a.predict.or(Some(a.clients));
-        let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
-        let endpoint = format!("tcp/127.0.0.1:{port}");
-        let scene = impact_core::scene::Scene::load(&impact_core::scene::Scene::bundled_path("arena"))
-            .map_err(anyhow::Error::msg)?;
-        eprintln!(
-            "demo: impact-server on {endpoint}, arena scene ({} balls), 64 Hz, rollback 250 ms",
-            scene.world.bodies.len()
-        );
-        let opts = impact_server::runtime::ServerOptions { listen: vec![endpoint.clone()], ..Default::default() };
-        demo_server = Some(impact_server::runtime::start(scene, opts)?);
-        a.connect = vec![endpoint.clone()];
-        a.world = "arena".into();
-        std::thread::sleep(Duration::from_millis(300));
-        let session = net::open(&[endpoint], None, None, net::Mode::Peer)?;
-        let world = WorldId::new("arena").map_err(anyhow::Error::msg)?;
-        let viewer = impact_client_sim::web::Viewer::start(&session, &world, &a.viewer)
-            .or_else(|_| impact_client_sim::web::Viewer::start(&session, &world, "127.0.0.1:0"))?;
-        eprintln!("demo: watch it live at {}", viewer.url());
-        demo_viewer = Some((viewer, session));
-    }
+    let (mut demo_server, mut demo_viewer) = if a.demo {
+        let (server, viewer) = start_demo(&mut a)?;
+        (Some(server), Some(viewer))
+    } else {
+        (None, None)
+    };
     if !(0.0..=1.0).contains(&a.loss) {
         bail!("--loss {} must be in [0, 1]", a.loss);
     }

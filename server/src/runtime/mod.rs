@@ -24,13 +24,14 @@ pub mod http;
 pub mod metrics;
 mod server;
 pub mod state;
+mod thread_clock;
 mod timing;
 mod zenoh_config;
 
 pub use error::RuntimeError;
 pub use metrics::Metrics;
 pub use server::{
-    start, start_worlds, Host, HostOptions, SceneLoader, ServerHandle, ServerOptions, Summary, WorldOptions,
+    start, start_worlds, Host, HostOptions, SceneLoader, ServerHandle, ServerOptions, Summary, TickThread, WorldOptions,
 };
 pub use state::StateOptions;
 pub use zenoh_config::zenoh_config;

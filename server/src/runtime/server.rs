@@ -29,7 +29,7 @@ mod tick;
 
 pub use host::{Host, HostOptions, SceneLoader, WorldOptions};
 use ingress::declare_primary;
-pub use summary::Summary;
+pub use summary::{Summary, TickThread};
 use tick::TickLoop;
 
 /// How to run the server.

@@ -18,6 +18,9 @@ pub struct Summary {
     pub tick_ms_mean: f64,
     /// 99th percentile tick, ms.
     pub tick_ms_p99: f64,
+    /// What the tick thread itself spent on its ticks and waited for a core (`None` where the
+    /// system does not count them): the server's cost apart from the machine's.
+    pub tick_thread: Option<TickThread>,
     /// Inputs accepted.
     pub inputs_accepted: u64,
     /// Inputs rejected, by reason.
@@ -81,6 +84,26 @@ pub struct Summary {
     pub state_skipped: u64,
 }
 
+/// The tick thread's CPU time per tick and its wait for a core, from the scheduler's own
+/// counts: a tick's wall time is its CPU time, plus the wait, plus any blocking. A wall-time p99
+/// well above the CPU time's is the machine (other processes or threads on the tick's core), not
+/// the server's work.
+#[derive(Clone, Debug, Default)]
+pub struct TickThread {
+    /// Median CPU time of a tick, ms.
+    pub cpu_ms_p50: f64,
+    /// 99th percentile CPU time of a tick, ms.
+    pub cpu_ms_p99: f64,
+    /// Longest CPU time of a tick, ms.
+    pub cpu_ms_max: f64,
+    /// 99th percentile of a tick's wait for a core, ms.
+    pub wait_ms_p99: f64,
+    /// Longest wait for a core in one tick, ms.
+    pub wait_ms_max: f64,
+    /// Ticks that waited 1 ms or more for a core.
+    pub waited_over_1ms: u64,
+}
+
 impl std::fmt::Display for Summary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
@@ -88,6 +111,13 @@ impl std::fmt::Display for Summary {
             "ticks {} (overruns {}), tick ms p50 {:.3} p99 {:.3} max {:.3}",
             self.ticks, self.overruns, self.tick_ms_p50, self.tick_ms_p99, self.tick_ms_max
         )?;
+        if let Some(t) = &self.tick_thread {
+            writeln!(
+                f,
+                "tick thread: cpu ms p50 {:.3} p99 {:.3} max {:.3}; waited for a core p99 {:.3} max {:.3} ms ({} ticks 1 ms or more)",
+                t.cpu_ms_p50, t.cpu_ms_p99, t.cpu_ms_max, t.wait_ms_p99, t.wait_ms_max, t.waited_over_1ms
+            )?;
+        }
         writeln!(
             f,
             "clients {}, inputs accepted {} (repeats skipped {}), lost inside the server {}",

@@ -4,12 +4,14 @@
 
 use super::standby::Published;
 use super::{
-    declare_primary, reject, send, ClientState, Control, Ingress, Primary, ServerOptions, Shared, Summary, Wiring,
+    declare_primary, reject, send, ClientState, Control, Ingress, Primary, ServerOptions, Shared, Summary, TickThread,
+    Wiring,
 };
 use crate::rollback::{RollbackConfig, Session};
 use crate::runtime::egress::Out;
 use crate::runtime::metrics::WorldMetrics;
 use crate::runtime::state::{Capture, StateCounters};
+use crate::runtime::thread_clock::ThreadClock;
 use crate::runtime::timing::LeadEstimator;
 use impact_core::scene::{avatar_position, AvatarRule, Scene};
 use impact_core::sim::{Plan, SystemAction};
@@ -36,6 +38,9 @@ pub(super) struct TickLoop {
     pub(super) tick_times: Vec<f64>,
     /// Every tick's duration, microseconds, for the run's percentiles.
     pub(super) all_tick_times: hdrhistogram::Histogram<u64>,
+    /// Every tick's CPU time on the tick thread and its wait for a core, microseconds (empty
+    /// where the system does not count them: see [`ThreadClock`]).
+    pub(super) tick_cpu: (hdrhistogram::Histogram<u64>, hdrhistogram::Histogram<u64>),
     /// Core stage times and steps at the last stats message, for the period's means.
     pub(super) last_stages: (u64, Vec<Duration>),
     /// Where state captures go (`None`: no state streams).
@@ -101,7 +106,8 @@ impl TickLoop {
             summary: Summary::default(),
             tick_times: Vec::with_capacity(128),
             // 1 us to 1 h at three significant figures: the bounds cannot be out of range.
-            all_tick_times: hdrhistogram::Histogram::new_with_bounds(1, 3_600_000_000, 3).expect("valid bounds"),
+            all_tick_times: micros(),
+            tick_cpu: (micros(), micros()),
             last_stages: (0, Vec::new()),
             state_tx: None,
             state_counters: Arc::new(StateCounters::default()),
@@ -202,6 +208,7 @@ impl TickLoop {
         let started = Instant::now();
         let mut next = started;
         let mut last_stats = Instant::now();
+        let mut clock = ThreadClock::of_this_thread();
         loop {
             if stop.load(Ordering::SeqCst) || self.opts.max_ticks.is_some_and(|m| self.summary.ticks >= m) {
                 break;
@@ -218,9 +225,15 @@ impl TickLoop {
                 next = now;
             }
             next += dt;
+            let before = clock.read();
             let t0 = Instant::now();
             self.tick(&ingress, &control, &queries);
             let ms = t0.elapsed().as_secs_f64() * 1e3;
+            if let (Some(b), Some(a)) = (before, clock.read()) {
+                let spent = a.since(b);
+                let _ = self.tick_cpu.0.record((spent.run_ns / 1000).max(1));
+                let _ = self.tick_cpu.1.record((spent.wait_ns / 1000).max(1));
+            }
             if t0.elapsed() > dt {
                 self.summary.overruns += 1;
             }
@@ -274,6 +287,17 @@ impl TickLoop {
         self.summary.tick_ms_p50 = h.value_at_quantile(0.5) as f64 / 1e3;
         self.summary.tick_ms_p99 = h.value_at_quantile(0.99) as f64 / 1e3;
         self.summary.tick_ms_mean = h.mean() / 1e3;
+        let (cpu, wait) = &self.tick_cpu;
+        if !cpu.is_empty() {
+            self.summary.tick_thread = Some(TickThread {
+                cpu_ms_p50: cpu.value_at_quantile(0.5) as f64 / 1e3,
+                cpu_ms_p99: cpu.value_at_quantile(0.99) as f64 / 1e3,
+                cpu_ms_max: cpu.max() as f64 / 1e3,
+                wait_ms_p99: wait.value_at_quantile(0.99) as f64 / 1e3,
+                wait_ms_max: wait.max() as f64 / 1e3,
+                waited_over_1ms: wait.count_between(1000, wait.max().max(1000)),
+            });
+        }
         self.summary.egress_dropped = self.shared.egress_dropped.load(Ordering::Relaxed);
         for (k, r) in RejectReason::ALL.iter().enumerate() {
             let n = self.shared.rejected_in_callbacks[k].load(Ordering::Relaxed);
@@ -686,4 +710,9 @@ impl TickLoop {
             self.put(self.events_key(client), &make(evs), e);
         }
     }
+}
+
+/// A histogram of microseconds from 1 us to 1 h at three significant figures.
+fn micros() -> hdrhistogram::Histogram<u64> {
+    hdrhistogram::Histogram::new_with_bounds(1, 3_600_000_000, 3).expect("the bounds are valid")
 }
