@@ -87,6 +87,11 @@ struct Args {
     /// Inputs per second one client may send.
     #[arg(long, default_value_t = 120)]
     rate_limit: u32,
+    /// The tick thread's nice value, ahead of other threads and processes when a core is
+    /// contended (below 0 needs CAP_SYS_NICE or root; without it the server says so and goes on).
+    /// 0 leaves its priority alone.
+    #[arg(long, default_value_t = impact_server::runtime::DEFAULT_TICK_NICE, allow_negative_numbers = true)]
+    tick_nice: i32,
     /// Stop after this many ticks (network mode).
     #[arg(long)]
     max_ticks: Option<u64>,
@@ -350,6 +355,7 @@ fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>, pool:
                 encoding: a.encoding,
                 rollback: Some(rollback),
                 inputs_per_client_per_s: a.rate_limit,
+                tick_nice: a.tick_nice,
                 max_ticks: a.max_ticks,
                 verbose: !a.quiet,
                 users: users.clone(),

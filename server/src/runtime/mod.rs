@@ -31,7 +31,8 @@ mod zenoh_config;
 pub use error::RuntimeError;
 pub use metrics::Metrics;
 pub use server::{
-    start, start_worlds, Host, HostOptions, SceneLoader, ServerHandle, ServerOptions, Summary, TickThread, WorldOptions,
+    start, start_worlds, Host, HostOptions, SceneLoader, ServerHandle, ServerOptions, Summary, TickThread,
+    WorldOptions, DEFAULT_TICK_NICE,
 };
 pub use state::StateOptions;
 pub use zenoh_config::zenoh_config;

@@ -77,6 +77,11 @@ pub struct ServerOptions {
     pub metrics: Option<Metrics>,
     /// Threads for the core's parallel stages (`--threads`), shared by the process's worlds.
     pub pool: impact_core::par::Pool,
+    /// The tick thread's nice value (`--tick-nice`; default -10): ahead of the process's other
+    /// threads and of other processes when a core is contended, so a tick does not wait behind
+    /// state streams or a neighbour. Below 0 needs `CAP_SYS_NICE` (or root); without it the
+    /// thread keeps its priority and the server says so once. 0 leaves it alone. Linux only.
+    pub tick_nice: i32,
 }
 
 impl Default for ServerOptions {
@@ -101,9 +106,13 @@ impl Default for ServerOptions {
             state: StateOptions::default(),
             metrics: None,
             pool: impact_core::par::Pool::sequential(),
+            tick_nice: DEFAULT_TICK_NICE,
         }
     }
 }
+
+/// The tick thread's nice value unless told otherwise (see [`ServerOptions::tick_nice`]).
+pub const DEFAULT_TICK_NICE: i32 = -10;
 
 /// A running server.
 #[derive(Debug)]

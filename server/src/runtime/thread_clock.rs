@@ -8,6 +8,9 @@
 //! cost and the machine's share. The file is opened once on the measured thread and re-read from
 //! the start (a few microseconds); elsewhere than Linux, or where the file is missing, the clock
 //! reads nothing and the figures are left out.
+//!
+//! [`set_nice`] puts the calling thread ahead of others when a core is contended: the tick thread
+//! asks for it (`ServerOptions::tick_nice`), so its wait shrinks where the system allows.
 
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
@@ -52,6 +55,20 @@ impl ThreadClock {
     }
 }
 
+/// Sets the calling thread's nice value (`setpriority` on its thread id): below 0 needs
+/// `CAP_SYS_NICE` or root. The error says why not; elsewhere than Linux it is refused.
+pub(crate) fn set_nice(nice: i32) -> Result<(), String> {
+    #[cfg(target_os = "linux")]
+    {
+        rustix::process::setpriority_process(Some(rustix::thread::gettid()), nice).map_err(|e| e.to_string())
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = nice;
+        Err("thread priorities are set on Linux only".into())
+    }
+}
+
 /// `"<run ns> <wait ns> <timeslices>\n"`.
 fn parse(text: &[u8]) -> Option<ThreadTimes> {
     let mut fields = std::str::from_utf8(text).ok()?.split_ascii_whitespace().map(str::parse::<u64>);
@@ -67,6 +84,27 @@ mod tests {
         assert_eq!(parse(b"1234 56 7\n"), Some(ThreadTimes { run_ns: 1234, wait_ns: 56 }));
         assert_eq!(parse(b""), None);
         assert_eq!(parse(b"12 x 3"), None);
+    }
+
+    /// A nice value the calling thread is allowed (raising it is), read back from the kernel's
+    /// own record of the thread; the process's other threads keep theirs.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn set_nice_moves_the_calling_thread_only() {
+        fn nice_of(path: &str) -> i64 {
+            let stat = std::fs::read_to_string(path).expect("stat");
+            // Field 19 (nice), counted after the parenthesised name.
+            stat.rsplit(')').next().unwrap().split_whitespace().nth(16).unwrap().parse().unwrap()
+        }
+        let main_before = nice_of("/proc/self/stat");
+        let moved = std::thread::spawn(|| {
+            set_nice(7).expect("raising the nice value needs no privilege");
+            nice_of("/proc/thread-self/stat")
+        })
+        .join()
+        .unwrap();
+        assert_eq!(moved, 7);
+        assert_eq!(nice_of("/proc/self/stat"), main_before, "the process's main thread is untouched");
     }
 
     #[test]

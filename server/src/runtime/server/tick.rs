@@ -209,6 +209,7 @@ impl TickLoop {
         let mut next = started;
         let mut last_stats = Instant::now();
         let mut clock = ThreadClock::of_this_thread();
+        self.first_in_line();
         loop {
             if stop.load(Ordering::SeqCst) || self.opts.max_ticks.is_some_and(|m| self.summary.ticks >= m) {
                 break;
@@ -274,6 +275,24 @@ impl TickLoop {
             }
         }
         self.finish()
+    }
+
+    /// Raises the tick thread's priority as [`ServerOptions::tick_nice`] says; a refusal is
+    /// said once per process (every world's tick thread would meet the same).
+    fn first_in_line(&self) {
+        static SAID: std::sync::Once = std::sync::Once::new();
+        let nice = self.opts.tick_nice;
+        if nice == 0 {
+            return;
+        }
+        if let Err(e) = crate::runtime::thread_clock::set_nice(nice) {
+            SAID.call_once(|| {
+                eprintln!(
+                    "impact-server: the tick thread keeps its priority (nice {nice}: {e}; below 0 needs \
+                     CAP_SYS_NICE, e.g. systemd's AmbientCapabilities=CAP_SYS_NICE, or --tick-nice 0 to not ask)"
+                );
+            });
+        }
     }
 
     /// The run's summary (after the last tick).
