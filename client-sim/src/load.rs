@@ -341,6 +341,8 @@ struct Wiring {
     /// State stream bytes and frames received by every client, counted without decoding.
     state_bytes: Arc<AtomicU64>,
     state_frames: Arc<AtomicU64>,
+    /// Bytes of every message the clients received on their own keys (answers, events, state).
+    down_bytes: Arc<AtomicU64>,
     subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
     tokens: Vec<zenoh::liveliness::LivelinessToken>,
     /// One more for each world the clients moved to.
@@ -357,6 +359,7 @@ impl Wiring {
             inbox_dropped: Arc::new(AtomicU64::new(0)),
             state_bytes: Arc::new(AtomicU64::new(0)),
             state_frames: Arc::new(AtomicU64::new(0)),
+            down_bytes: Arc::new(AtomicU64::new(0)),
             subscribers: Vec::new(),
             tokens: Vec::new(),
             generation: 0,
@@ -414,10 +417,12 @@ impl Wiring {
             let (inbox, generation) = (self.inbox.clone(), self.generation);
             let dropped = self.inbox_dropped.clone();
             let counts = state.then(|| (self.state_bytes.clone(), self.state_frames.clone()));
+            let down = self.down_bytes.clone();
             let sub = self
                 .session(k)
                 .declare_subscriber(pattern.key(world, Some(c.id)))
                 .callback(move |sample| {
+                    down.fetch_add(sample.payload().len() as u64, Relaxed);
                     if let Some((bytes, frames)) = &counts {
                         bytes.fetch_add(sample.payload().len() as u64, Relaxed);
                         frames.fetch_add(1, Relaxed);
@@ -439,10 +444,12 @@ impl Wiring {
         }
         if cfg.state && !c.game {
             let (bytes, frames) = (self.state_bytes.clone(), self.state_frames.clone());
+            let down = self.down_bytes.clone();
             let sub = self
                 .session(k)
                 .declare_subscriber(keys::CLIENT_STATE.key(world, Some(c.id)))
                 .callback(move |sample| {
+                    down.fetch_add(sample.payload().len() as u64, Relaxed);
                     bytes.fetch_add(sample.payload().len() as u64, Relaxed);
                     frames.fetch_add(1, Relaxed);
                 })
@@ -468,9 +475,21 @@ impl Wiring {
         Ok(())
     }
 
-    /// State stream bytes and frames counted so far.
-    fn state_counts(&self) -> (u64, u64) {
-        (self.state_bytes.load(Relaxed), self.state_frames.load(Relaxed))
+    /// What the clients received so far: state stream bytes and frames, and bytes in all.
+    fn counts(&self) -> Received {
+        Received {
+            state_bytes: self.state_bytes.load(Relaxed),
+            state_frames: self.state_frames.load(Relaxed),
+            bytes: self.down_bytes.load(Relaxed),
+            inbox_dropped: self.inbox_dropped.load(Relaxed),
+        }
+    }
+
+    /// Counts from the start of the load on (what joining cost is not in them).
+    fn reset_counts(&self) {
+        for c in [&self.state_bytes, &self.state_frames, &self.down_bytes] {
+            c.store(0, Relaxed);
+        }
     }
 
     /// Drops the tokens and subscriptions, then closes the sessions.
@@ -481,6 +500,15 @@ impl Wiring {
             let _ = s.close().wait();
         }
     }
+}
+
+/// What the clients received, counted by the callbacks (without decoding what no client reads).
+#[derive(Clone, Copy, Debug)]
+struct Received {
+    state_bytes: u64,
+    state_frames: u64,
+    bytes: u64,
+    inbox_dropped: u64,
 }
 
 /// The run loop's state: the clients, both delay lines, and the figures gathered.
@@ -498,6 +526,11 @@ struct Run<'a> {
     depth: Histogram<u64>,
     /// Every tick's duration the server reported during the load, microseconds (1 us to 1 h).
     server_ticks: Histogram<u64>,
+    /// How late each client's input was made after its turn came, microseconds: whether the
+    /// load generator kept up.
+    lag: Histogram<u64>,
+    /// Bytes put on the input keys.
+    up_bytes: u64,
     r: Report,
     /// Time between one client's inputs.
     period: Duration,
@@ -617,10 +650,9 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
     wiring.declare_presence(&cfg.world, &clients)?;
     let mut run = Run::new(cfg, clients, wiring.sessions.len())?;
     run.walk_mps = walk_speed(rules.as_ref());
-    // State streams are counted over the load alone.
-    wiring.state_bytes.store(0, Relaxed);
-    wiring.state_frames.store(0, Relaxed);
-    let mut state_at_end = None;
+    // What the clients receive is counted over the load alone.
+    wiring.reset_counts();
+    let mut received_at_end = None;
     let tty = std::io::stderr().is_terminal();
     let mut last_progress = Instant::now();
     let stop = run.load_end + cfg.settle;
@@ -629,8 +661,8 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
         if now >= stop {
             break;
         }
-        if now >= run.load_end && state_at_end.is_none() {
-            state_at_end = Some(wiring.state_counts());
+        if now >= run.load_end && received_at_end.is_none() {
+            received_at_end = Some(wiring.counts());
         }
         run.downlink(&wiring, now);
         if let Some(next) = run.closed_to() {
@@ -660,7 +692,7 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
             signal(pid, false);
         }
     }
-    let r = run.report(state_at_end.unwrap_or_else(|| wiring.state_counts()));
+    let r = run.report(received_at_end.unwrap_or_else(|| wiring.counts()));
     wiring.close();
     let _ = std::io::stderr().flush();
     Ok(r)
@@ -682,6 +714,8 @@ impl Run<'_> {
             latency: Histogram::new_with_bounds(1, 60_000_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?,
             depth: Histogram::new_with_bounds(1, 100_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?,
             server_ticks: Histogram::new_with_bounds(1, 3_600_000_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?,
+            lag: Histogram::new_with_bounds(1, 3_600_000_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?,
+            up_bytes: 0,
             r: Report {
                 clients: cfg.clients,
                 sessions: sessions as u32,
@@ -801,6 +835,7 @@ impl Run<'_> {
             }
             if let (Some(entity), true) = (s.avatar(), c.playing_since.is_some() && now < self.load_end) {
                 if c.next_action <= now {
+                    let _ = self.lag.record(now.duration_since(c.next_action).as_micros().max(1) as u64);
                     c.next_action += self.period;
                     let aimed =
                         if c.behaviour == Behaviour::Fighter { fight(s, entity, now, &mut self.rng) } else { None };
@@ -892,6 +927,9 @@ impl Run<'_> {
             }
         }
         while let Some((k, seqs, bytes)) = self.up.pop_due(now) {
+            if now < self.load_end {
+                self.up_bytes += bytes.len() as u64;
+            }
             let put = wiring.session(k).put(&self.input_keys[k], bytes).encoding(self.cfg.encoding.zenoh_tag());
             if put.wait().is_ok() {
                 self.r.inputs_delivered += self.clients[k].delivered(&seqs);
@@ -960,8 +998,8 @@ impl Run<'_> {
     }
 
     /// The report: what was counted, with the quantiles, rates and per-client figures drawn from
-    /// it. `state` is the state streams' (bytes, frames) at the end of the load.
-    fn report(mut self, state: (u64, u64)) -> Report {
+    /// it. `received` is what the clients had received by the end of the load.
+    fn report(mut self, received: Received) -> Report {
         let cfg = self.cfg;
         let mut r = std::mem::take(&mut self.r);
         let (latency, depth, server_ticks, clients) = (&self.latency, &self.depth, &self.server_ticks, &self.clients);
@@ -985,10 +1023,17 @@ impl Run<'_> {
         r.correction_depth_p50 = depth.value_at_quantile(0.5) as f64;
         r.correction_depth_max = depth.max() as f64;
         r.correction_depth_p99 = depth.value_at_quantile(0.99) as f64;
-        let (bytes, frames) = state;
-        r.state_frames = frames;
+        r.state_frames = received.state_frames;
         let streams = if cfg.state { cfg.clients } else { cfg.predict.min(cfg.clients) };
-        r.state_bytes_per_client_s = bytes as f64 / (f64::from(streams.max(1)) * secs);
+        r.state_bytes_per_client_s = received.state_bytes as f64 / (f64::from(streams.max(1)) * secs);
+        let per_client_s = f64::from(cfg.clients.max(1)) * secs;
+        r.bytes_down_per_client_s = received.bytes as f64 / per_client_s;
+        r.bytes_up_per_client_s = self.up_bytes as f64 / per_client_s;
+        r.load_inbox_dropped = received.inbox_dropped;
+        if !self.lag.is_empty() {
+            r.load_lag_ms_p99 = self.lag.value_at_quantile(0.99) as f64 / 1e3;
+            r.load_lag_ms_max = self.lag.max() as f64 / 1e3;
+        }
         r.server_ticks_measured = server_ticks.len();
         if !server_ticks.is_empty() {
             r.server_tick_ms_p50 = server_ticks.value_at_quantile(0.5) as f64 / 1e3;

@@ -87,6 +87,19 @@ pub struct Report {
     pub state_frames: u64,
     /// State stream bytes per client per second over the load (`--state`).
     pub state_bytes_per_client_s: f64,
+    /// Bytes each client received per second over the load, on all its keys (answers, events,
+    /// state).
+    pub bytes_down_per_client_s: f64,
+    /// Bytes each client's inputs put per second over the load (what reached the server: the
+    /// simulated loss took the rest).
+    pub bytes_up_per_client_s: f64,
+    /// How late the load generator made an input after its client's turn, ms: 99th percentile.
+    /// Past a tick (15.6 ms) it did not keep up, and the run measures it as much as the server.
+    pub load_lag_ms_p99: f64,
+    /// The latest.
+    pub load_lag_ms_max: f64,
+    /// Messages the load generator's inbox had no room for (it fell behind).
+    pub load_inbox_dropped: u64,
     /// The server's last reported overruns.
     pub server_overruns: u64,
     /// Rollbacks the server reported over the load.
@@ -235,6 +248,17 @@ pub struct ClientTiming {
     pub corrections: u64,
 }
 
+impl Report {
+    /// Whether the load generator kept up: its inputs at most a tick (15.6 ms at 64 Hz) late at
+    /// the 99th percentile, and every message it received had room in its inbox.
+    pub fn load_kept_up(&self) -> bool {
+        self.load_lag_ms_p99 <= LAG_BOUND_MS && self.load_inbox_dropped == 0
+    }
+}
+
+/// The input lag past which the load generator did not keep up (a tick at 64 Hz).
+pub const LAG_BOUND_MS: f64 = 1000.0 / 64.0;
+
 impl std::fmt::Display for Report {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
@@ -315,6 +339,16 @@ impl std::fmt::Display for Report {
                 self.state_frames, self.state_bytes_per_client_s
             )?;
         }
+        writeln!(
+            f,
+            "  bytes    per client per second: {:.0} received, {:.0} sent | load generator: input lag p99 {:.1} ms max {:.1} ms, inbox full {} times{}",
+            self.bytes_down_per_client_s,
+            self.bytes_up_per_client_s,
+            self.load_lag_ms_p99,
+            self.load_lag_ms_max,
+            self.load_inbox_dropped,
+            if self.load_kept_up() { "" } else { " (it fell behind: the figures measure it too)" }
+        )?;
         write!(
             f,
             "  server   under load: tick p50 {:.3} p99 {:.3} max {:.3} ms over {} ticks, rollbacks {:.1}/s \

@@ -7,8 +7,10 @@
 //! - [`runtime`]: the Zenoh runtime (session, tick thread, ingress and egress).
 //! - [`stability`], [`trials`]: numerical stress cases and known-answer trials, shared by the
 //!   tests and `impact-bench`.
+//! - [`plot`]: the SVG plots the benchmark programs draw.
 
 pub mod offline;
+pub mod plot;
 pub mod recording;
 pub mod rollback;
 #[cfg(feature = "runtime")]

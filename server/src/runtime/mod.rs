@@ -35,4 +35,5 @@ pub use server::{
     WorldOptions, DEFAULT_TICK_NICE,
 };
 pub use state::StateOptions;
+pub use thread_clock::pin_to_cpu;
 pub use zenoh_config::zenoh_config;

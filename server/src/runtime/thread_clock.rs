@@ -11,6 +11,7 @@
 //!
 //! [`set_nice`] puts the calling thread ahead of others when a core is contended: the tick thread
 //! asks for it (`ServerOptions::tick_nice`), so its wait shrinks where the system allows.
+//! [`pin_to_cpu`] keeps a thread on one CPU.
 
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
@@ -66,6 +67,22 @@ pub(crate) fn set_nice(nice: i32) -> Result<(), String> {
     {
         let _ = nice;
         Err("thread priorities are set on Linux only".into())
+    }
+}
+
+/// Keeps the calling thread, and the threads it starts from now on, on one CPU (a benchmark's
+/// load generator kept off the server's core). Elsewhere than Linux it is refused.
+pub fn pin_to_cpu(cpu: usize) -> Result<(), String> {
+    #[cfg(target_os = "linux")]
+    {
+        let mut set = rustix::thread::CpuSet::new();
+        set.set(cpu);
+        rustix::thread::sched_setaffinity(None, &set).map_err(|e| format!("CPU {cpu}: {e}"))
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = cpu;
+        Err("CPU affinity is set on Linux only".into())
     }
 }
 

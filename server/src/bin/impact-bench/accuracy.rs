@@ -4,9 +4,10 @@
 //! swept sphere) at 30, 64, 120 and 240 Hz, and rapier's continuous collision (PhysicsPipeline
 //! with CCD) on the head-on bullet and sphere-box scenes in the same run.
 
-use super::report::{json_line, progress, svg_loglog, Series};
+use super::report::{json_line, progress};
 use anyhow::Result;
 use clap::Args;
+use impact_server::plot::{svg_loglog, Series};
 use impact_server::trials::{self, Errors, Kind, Method, Setup};
 use rapier3d::prelude::*;
 use serde_json::json;

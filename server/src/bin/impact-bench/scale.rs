@@ -7,12 +7,13 @@
 //! rapier runs on one thread, or, built with `--features rapier-parallel`, at every `--threads`
 //! count with its own parallel pipeline.
 
-use super::report::{json_line, mean_ms, median_ms, pools, progress, svg_loglog, Series};
+use super::report::{json_line, mean_ms, median_ms, pools, progress};
 use anyhow::{ensure, Result};
 use clap::Args;
 use impact_core::broadphase::BroadphaseKind;
 use impact_core::scene::Scene;
 use impact_core::sim::{Plan, Pool, Stepper, TickOutput, World};
+use impact_server::plot::{svg_loglog, Series};
 use rapier3d::prelude::*;
 use serde_json::json;
 use std::time::{Duration, Instant};

@@ -14,17 +14,19 @@
 //! plus the frames it waited), so none starves. The budget is a token bucket: a second's worth of
 //! bytes at most, refilled each frame, so a full frame may spend what the deltas left.
 
+mod frame;
+mod grid;
+mod thread;
+
+use frame::{avatar_state, build, estimate, f32x3, info_key, publish, Held, Marks, Remap};
 use glam::DVec3;
+use grid::{AreaGrid, Filed};
 use impact_core::sim::world::{BodyTable, SimConfig, StaticWorld, Touch};
-use impact_protocol::{
-    encode, keys, AvatarState, AvatarTouch, BodyInfo, BodyMotion, BodyShape, ClientId, Encoding, EntityId, GameState,
-    ServerMessage, StateFrame, Tick, WorldId,
-};
+use impact_protocol::{keys, BodyMotion, ClientId, Encoding, EntityId, StateFrame, Tick, WorldId};
 use std::collections::BTreeMap;
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::mpsc::Receiver;
+use std::sync::atomic::AtomicU64;
 use std::sync::Arc;
-use std::time::Instant;
+pub use thread::run;
 
 /// How the state streams run.
 #[derive(Clone, Debug, PartialEq)]
@@ -148,121 +150,6 @@ enum Src {
     Terrain,
 }
 
-/// A body filed in a grid cell: its bounds beside its index, so a search reads cells in order.
-#[derive(Clone, Copy, Debug)]
-struct Filed {
-    lo: DVec3,
-    hi: DVec3,
-    i: u32,
-}
-
-/// The bodies filed by the cell their centre is in, in a dense grid over the centres' bounds:
-/// cells in (x, y, z) order, z fastest, each cell's bodies together, so a search reads each
-/// (x, y) row of cells as one slice (no hashing, no pointer chasing).
-#[derive(Debug, Default)]
-struct AreaGrid {
-    origin: DVec3,
-    size: f64,
-    dims: [i64; 3],
-    /// `start[k]..start[k + 1]` are cell `k`'s bodies in `items`.
-    start: Vec<u32>,
-    items: Vec<Filed>,
-}
-
-/// Most cells a grid has; a world wider than this many cells of the asked size gets bigger cells.
-const MAX_CELLS: i64 = 1 << 20;
-
-impl AreaGrid {
-    fn cell_of(&self, p: DVec3) -> [i64; 3] {
-        let q = ((p - self.origin) / self.size).floor();
-        [q.x as i64, q.y as i64, q.z as i64]
-    }
-
-    fn index(&self, c: [i64; 3]) -> usize {
-        ((c[0] * self.dims[1] + c[1]) * self.dims[2] + c[2]) as usize
-    }
-
-    /// Files `bodies` in cells of (at least) `size`.
-    fn build(&mut self, size: f64, bodies: &[Filed]) {
-        self.items.clear();
-        self.start.clear();
-        if bodies.is_empty() {
-            self.dims = [0; 3];
-            return;
-        }
-        let centre = |f: &Filed| (f.lo + f.hi) * 0.5;
-        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-        for f in bodies {
-            lo = lo.min(centre(f));
-            hi = hi.max(centre(f));
-        }
-        self.origin = lo;
-        self.size = size;
-        loop {
-            let d = ((hi - lo) / self.size).floor() + DVec3::ONE;
-            self.dims = [d.x as i64, d.y as i64, d.z as i64];
-            if d.x * d.y * d.z <= MAX_CELLS as f64 {
-                break;
-            }
-            self.size *= 2.0;
-        }
-        let cells = (self.dims[0] * self.dims[1] * self.dims[2]) as usize;
-        self.start.resize(cells + 1, 0);
-        let keys: Vec<usize> = bodies.iter().map(|f| self.index(self.cell_of(centre(f)))).collect();
-        for &k in &keys {
-            self.start[k + 1] += 1;
-        }
-        for k in 0..cells {
-            self.start[k + 1] += self.start[k];
-        }
-        let mut at: Vec<u32> = self.start[..cells].to_vec();
-        self.items.resize(bodies.len(), bodies[0]);
-        for (f, &k) in bodies.iter().zip(&keys) {
-            self.items[at[k] as usize] = *f;
-            at[k] += 1;
-        }
-    }
-}
-
-/// What a receiver holds: the bodies it was sent, in entity order, and the motion it was sent.
-#[derive(Debug, Default)]
-struct Held {
-    bodies: Vec<HeldBody>,
-    frame: u32,
-    /// Bytes it may still spend (token bucket).
-    tokens: f64,
-    key: String,
-}
-
-#[derive(Clone, Copy, Debug)]
-struct HeldBody {
-    motion: BodyMotion,
-    /// The [`Entry::info`] it was sent.
-    info: u64,
-    /// Frames it has changed without being sent.
-    waited: u32,
-}
-
-/// Upper bounds on the MessagePack size of a frame's parts (the budget is kept on these, so
-/// the bytes sent never exceed it).
-const FRAME_BYTES: usize = 160;
-const MOTION_BYTES: usize = 40;
-const INFO_BYTES: usize = 210; // plus the class name; 90 of it the rotation and the local shape
-const LEFT_BYTES: usize = 5;
-/// The avatar's state on a client's stream (its key, six fields, f64s at 9 bytes), and each of
-/// its contacts.
-const AVATAR_BYTES: usize = 136;
-const TOUCH_BYTES: usize = 128;
-
-fn f32x3(v: DVec3) -> [f32; 3] {
-    [v.x as f32, v.y as f32, v.z as f32]
-}
-
-fn changed(a: &BodyMotion, b: &BodyMotion) -> bool {
-    let far = |x: &[f32; 3], y: &[f32; 3], eps: f32| x.iter().zip(y).any(|(p, q)| (p - q).abs() > eps);
-    a.3 != b.3 || far(&a.1, &b.1, 1e-3) || far(&a.2, &b.2, 1e-3)
-}
-
 /// The state streams of one world.
 #[derive(Debug)]
 pub struct Streams {
@@ -282,6 +169,9 @@ pub struct Streams {
     /// The largest half size of a body in the grid.
     reach: f64,
     scratch: Vec<(f64, u32)>,
+    /// Last frame's entry indices to this frame's.
+    remap: Remap,
+    marks: Marks,
     counts: StreamCounts,
 }
 
@@ -329,6 +219,8 @@ impl Streams {
             large: Vec::new(),
             reach: 0.0,
             scratch: Vec::new(),
+            remap: Remap::default(),
+            marks: Marks::default(),
             counts: StreamCounts::default(),
             opts,
         }
@@ -352,7 +244,8 @@ impl Streams {
             let all: Vec<(f64, u32)> = (0..self.entries.len() as u32).map(|i| (0.0, i)).collect();
             let world_key = self.world_key.clone();
             let full = full || self.world.bodies.is_empty();
-            let frame = build(&mut self.world, &self.entries, cap, &all, None, full, None);
+            let frame =
+                build(&mut self.world, (&self.entries, &self.remap), &mut self.marks, cap, &all, None, full, None);
             out.extend(publish(world_key, None, frame, self.encoding, keep));
         } else {
             self.world.bodies.clear();
@@ -378,7 +271,8 @@ impl Streams {
             held.tokens = (held.tokens + per_frame).min(cap_tokens);
             // A new receiver starts from a full frame, and one that asked for it gets one.
             let full = full || held.frame == 0 || v.full;
-            let mut frame = build(held, &self.entries, cap, &self.scratch, Some(held.tokens), full, Some(c));
+            let at = (&self.entries[..], &self.remap);
+            let mut frame = build(held, at, &mut self.marks, cap, &self.scratch, Some(held.tokens), full, Some(c));
             frame.avatar = avatar_state(cap, v.avatar);
             held.tokens = (held.tokens - estimate(&frame) as f64).max(0.0);
             self.counts.client_frames += 1;
@@ -427,6 +321,7 @@ impl Streams {
         });
         self.entries.extend(statics.chain(terrain).chain(dynamic));
         self.entries.sort_by_key(|e| e.motion.0);
+        self.remap.advance(&self.entries);
         self.large.clear();
         self.filed.clear();
         self.reach = 0.0;
@@ -444,7 +339,7 @@ impl Streams {
     }
 
     /// The bodies within `aoi_m` of `c` (distance to their bounds) into `scratch`, as
-    /// `(distance, entry)` in entity order.
+    /// `(distance, entry)`, in the order of the grid's cells.
     fn near(&mut self, c: DVec3) {
         self.scratch.clear();
         let r = self.opts.aoi_m;
@@ -485,356 +380,6 @@ impl Streams {
                 self.scratch.push((d2.sqrt(), i));
             }
         }
-        self.scratch.sort_unstable_by_key(|&(_, i)| i);
-    }
-}
-
-/// What can change in a body's info, as a hash (see [`Entry::info`]).
-fn info_key(class: impact_core::sim::world::ClassId, game: &GameState, teleported: Option<Tick>) -> u64 {
-    use std::hash::{Hash, Hasher};
-    if game.is_empty() && teleported.is_none() {
-        return u64::from(class.0);
-    }
-    let mut h = std::collections::hash_map::DefaultHasher::new();
-    class.0.hash(&mut h);
-    teleported.map(|t| t.0).hash(&mut h);
-    for (k, v) in &game.0 {
-        k.hash(&mut h);
-        v.to_bits().hash(&mut h);
-    }
-    h.finish() | 1 << 63
-}
-
-/// A body's class id.
-fn class_of(cap: &Capture, e: &Entry) -> Option<impact_core::sim::world::ClassId> {
-    match e.src {
-        Src::Dynamic(i) => Some(cap.table.class[i]),
-        Src::Static(i) => Some(cap.statics.class[i]),
-        Src::Terrain => cap.statics.terrain.as_ref().map(|t| t.class),
-    }
-}
-
-/// A body's class name ("" if the class is unknown).
-fn class_name<'a>(cap: &'a Capture, e: &Entry) -> &'a str {
-    class_of(cap, e).and_then(|c| cap.config.classes.props.get(c.0 as usize)).map_or("", |p| p.name.as_str())
-}
-
-fn info(cap: &Capture, e: &Entry) -> BodyInfo {
-    let half = (e.hi - e.lo) * 0.5;
-    let pos = DVec3::new(f64::from(e.motion.1[0]), f64::from(e.motion.1[1]), f64::from(e.motion.1[2]));
-    let offset = (e.hi + e.lo) * 0.5 - pos;
-    let (owner, shape) = match e.src {
-        Src::Dynamic(i) => (cap.table.owner[i], Some((&cap.table.shape[i], cap.table.rot[i]))),
-        Src::Static(i) => (None, Some((&cap.statics.shape[i], cap.statics.rot[i]))),
-        Src::Terrain => (None, None),
-    };
-    let primitive = |s: &impact_core::geometry::Shape| {
-        use impact_core::geometry::ShapeKind as K;
-        matches!(s.kind(), K::Sphere | K::Capsule | K::Cuboid | K::Ellipsoid).then(|| s.to_spec())
-    };
-    let rotation = shape.map(|(_, r)| r).filter(|r| *r != glam::DQuat::IDENTITY).map(|r| r.as_quat().to_array());
-    BodyInfo {
-        entity: e.motion.0,
-        class: class_name(cap, e).to_string(),
-        owner,
-        shape: shape.map_or(BodyShape::Terrain, |(s, _)| shape_of(s)),
-        half_extents_m: f32x3(half),
-        offset_m: f32x3(offset),
-        fixed: !matches!(e.src, Src::Dynamic(_)),
-        rotation,
-        local_shape: shape.and_then(|(s, _)| primitive(s)),
-        state: match e.src {
-            Src::Dynamic(i) => cap.table.game[i].clone(),
-            _ => GameState::default(),
-        },
-        teleported: match e.src {
-            Src::Dynamic(i) => cap.table.teleported[i],
-            _ => None,
-        },
-    }
-}
-
-/// The avatar's whole core state at the capture's tick (PROTOCOL.md, "Prediction"): exact
-/// position and velocity, its sleep state, and its contacts with static geometry.
-fn avatar_state(cap: &Capture, avatar: EntityId) -> Option<AvatarState> {
-    let i = cap.table.id.binary_search(&avatar).ok()?;
-    let is_body = |e: EntityId| cap.table.id.binary_search(&e).is_ok();
-    let touching = cap
-        .touching
-        .iter()
-        .filter_map(|t| {
-            let other = if t.a == avatar {
-                t.b
-            } else if t.b == avatar {
-                t.a
-            } else {
-                return None;
-            };
-            (!is_body(other)).then(|| AvatarTouch {
-                other,
-                normal: t.normal.to_array(),
-                depth_m: t.depth,
-                impulse: t.impulse,
-                friction_impulse: t.friction_impulse.to_array(),
-            })
-        })
-        .collect();
-    Some(AvatarState {
-        entity: avatar,
-        position: cap.pos[i].to_array(),
-        velocity: cap.vel[i].to_array(),
-        asleep: cap.asleep[i],
-        still_ticks: cap.still[i],
-        touching,
-        class: Some(cap.table.class[i].0),
-        teleported: cap.table.teleported[i],
-    })
-}
-
-fn shape_of(s: &impact_core::geometry::Shape) -> BodyShape {
-    use impact_core::geometry::ShapeKind as K;
-    match s.kind() {
-        K::Sphere => BodyShape::Sphere,
-        K::Capsule => BodyShape::Capsule,
-        K::Cuboid => BodyShape::Cuboid,
-        K::Ellipsoid => BodyShape::Ellipsoid,
-        K::Convex => BodyShape::Convex,
-        K::TriMesh => BodyShape::Trimesh,
-    }
-}
-
-/// The frame that brings `held` to the bodies of `cands` (`(priority distance, entry)` in entity
-/// order), spending at most `budget` estimated bytes; updates `held` to what it sends.
-fn build(
-    held: &mut Held,
-    entries: &[Entry],
-    cap: &Capture,
-    cands: &[(f64, u32)],
-    budget: Option<f64>,
-    full: bool,
-    centre: Option<DVec3>,
-) -> StateFrame {
-    enum Want {
-        Enter,
-        Move(usize),
-    }
-    let mut frame = StateFrame {
-        tick: cap.tick,
-        frame: held.frame,
-        full,
-        entered: Vec::new(),
-        moved: Vec::new(),
-        left: Vec::new(),
-        deferred: 0,
-        centre: centre.map(f32x3),
-        avatar: None,
-    };
-    held.frame = held.frame.wrapping_add(1);
-    let mut spend = FRAME_BYTES;
-    // Merge what it holds with what it should hold, both in entity order.
-    let mut wants: Vec<(f64, EntityId, u32, Want)> = Vec::new();
-    let mut keep: Vec<HeldBody> = Vec::with_capacity(held.bodies.len());
-    let (mut h, mut c) = (0, 0);
-    let old = std::mem::take(&mut held.bodies);
-    while h < old.len() || c < cands.len() {
-        let he = old.get(h).map(|b| b.motion.0);
-        let ce = cands.get(c).map(|&(_, i)| entries[i as usize].motion.0);
-        match (he, ce) {
-            (Some(a), Some(b)) if a == b => {
-                let (d, i) = cands[c];
-                let now = entries[i as usize].motion;
-                if full {
-                    wants.push((d, b, i, Want::Enter));
-                } else if old[h].info != entries[i as usize].info {
-                    // Its class or game state changed: its info again, from the budget first.
-                    wants.push((0.0, b, i, Want::Enter));
-                } else if changed(&old[h].motion, &now) {
-                    let waited = old[h].waited;
-                    wants.push((d / (1.0 + f64::from(waited)), b, i, Want::Move(keep.len())));
-                    keep.push(old[h]);
-                } else {
-                    keep.push(old[h]);
-                }
-                h += 1;
-                c += 1;
-            }
-            (Some(a), b) if b.is_none_or(|b| a < b) => {
-                if !full {
-                    frame.left.push(a);
-                    spend += LEFT_BYTES;
-                }
-                h += 1;
-            }
-            _ => {
-                let (d, i) = cands[c];
-                wants.push((d, entries[i as usize].motion.0, i, Want::Enter));
-                c += 1;
-            }
-        }
-    }
-    if full {
-        keep.clear();
-    }
-    // Only as many as the budget could hold at the cheapest need ordering: pick them, sort them;
-    // the rest wait (in any order: each just waits).
-    let cmp = |a: &(f64, EntityId, u32, Want), b: &(f64, EntityId, u32, Want)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
-    let fit = budget.map_or(wants.len(), |b| ((b - spend as f64).max(0.0) / MOTION_BYTES as f64) as usize + 1);
-    if fit < wants.len() {
-        wants.select_nth_unstable_by(fit, cmp);
-        wants[..fit].sort_by(cmp);
-    } else {
-        wants.sort_by(cmp);
-    }
-    let mut entered: Vec<HeldBody> = Vec::new();
-    for (_, _, i, want) in wants {
-        let e = &entries[i as usize];
-        let cost = match want {
-            Want::Enter => info_bytes(cap, e) + MOTION_BYTES,
-            Want::Move(_) => MOTION_BYTES,
-        };
-        if let Some(b) = budget {
-            if (spend + cost) as f64 > b {
-                frame.deferred += 1;
-                if let Want::Move(k) = want {
-                    keep[k].waited = keep[k].waited.saturating_add(1);
-                }
-                continue;
-            }
-        }
-        spend += cost;
-        frame.moved.push(e.motion);
-        match want {
-            Want::Move(k) => keep[k] = HeldBody { motion: e.motion, info: keep[k].info, waited: 0 },
-            Want::Enter => {
-                frame.entered.push(info(cap, e));
-                entered.push(HeldBody { motion: e.motion, info: e.info, waited: 0 });
-            }
-        }
-    }
-    keep.extend(entered);
-    keep.sort_unstable_by_key(|b| b.motion.0);
-    frame.moved.sort_unstable_by_key(|m| m.0);
-    frame.entered.sort_unstable_by_key(|i| i.entity);
-    held.bodies = keep;
-    frame
-}
-
-/// The bytes a body's info is budgeted at.
-fn info_bytes(cap: &Capture, e: &Entry) -> usize {
-    let state = match e.src {
-        Src::Dynamic(i) => state_bytes(&cap.table.game[i]),
-        _ => 0,
-    };
-    INFO_BYTES + class_name(cap, e).len() + state
-}
-
-/// A game state's MessagePack size at most: each name's string and a float.
-fn state_bytes(g: &GameState) -> usize {
-    g.0.keys().map(|k| k.len() + 2 + 9).sum::<usize>() + 8
-}
-
-/// The budgeted size of a frame: at least its MessagePack size.
-fn estimate(f: &StateFrame) -> usize {
-    let infos: usize = f.entered.iter().map(|i| INFO_BYTES + i.class.len() + state_bytes(&i.state)).sum();
-    let avatar = f.avatar.as_ref().map_or(0, |a| AVATAR_BYTES + a.touching.len() * TOUCH_BYTES);
-    FRAME_BYTES + infos + f.moved.len() * MOTION_BYTES + f.left.len() * LEFT_BYTES + avatar
-}
-
-fn publish(
-    key: String,
-    client: Option<ClientId>,
-    frame: StateFrame,
-    encoding: Encoding,
-    keep: bool,
-) -> Option<Publish> {
-    let deferred = frame.deferred;
-    let msg = ServerMessage::State(frame);
-    let bytes = encode(&msg, encoding).ok()?;
-    let frame = match msg {
-        ServerMessage::State(f) if keep => Some(f),
-        _ => None,
-    };
-    Some(Publish { key, bytes, encoding, client, deferred, frame })
-}
-
-/// Whether anyone subscribes to what `p` publishes (`true` when it cannot tell).
-fn matching(p: Option<&zenoh::pubsub::Publisher<'static>>) -> bool {
-    use zenoh::Wait;
-    p.is_none_or(|p| p.matching_status().wait().map(|m| m.matching()).unwrap_or(true))
-}
-
-/// A client's publisher, and whether it was listening when last asked.
-struct Listener {
-    publisher: Option<zenoh::pubsub::Publisher<'static>>,
-    listening: bool,
-    next_check: u64,
-}
-
-/// The state thread: builds and publishes frames for every capture until the queue closes.
-///
-/// Streams nobody subscribes to are not built: the world stream's publisher is asked every frame,
-/// each client's once a second (a client that subscribes is seen within a second and starts with
-/// a full frame), so players that never look at the state cost only the question.
-pub fn run(
-    session: zenoh::Session,
-    world: WorldId,
-    opts: StateOptions,
-    encoding: Encoding,
-    rx: Receiver<Capture>,
-    counters: Arc<StateCounters>,
-) {
-    use zenoh::Wait;
-    let drop = zenoh::qos::CongestionControl::Drop;
-    let publisher = |key: String| session.declare_publisher(key).congestion_control(drop).wait().ok();
-    let world_publisher = publisher(keys::STATE.key(&world, None));
-    let mut listeners: BTreeMap<ClientId, Listener> = BTreeMap::new();
-    let check_every = u64::from(opts.hz.max(1));
-    let mut streams = Streams::new(world.clone(), opts, encoding);
-    for (n, mut cap) in rx.into_iter().enumerate() {
-        let t0 = Instant::now();
-        let n = n as u64;
-        listeners.retain(|c, _| cap.watchers.iter().any(|v| v.client == *c));
-        cap.watchers.retain(|v| {
-            let l = listeners.entry(v.client).or_insert_with(|| Listener {
-                publisher: publisher(keys::CLIENT_STATE.key(&world, Some(v.client))),
-                listening: false,
-                next_check: n,
-            });
-            if n >= l.next_check {
-                l.listening = matching(l.publisher.as_ref());
-                l.next_check = n + check_every;
-            }
-            l.listening
-        });
-        let frames = streams.frames(&cap, matching(world_publisher.as_ref()), false);
-        let mut deferred = 0;
-        for p in frames {
-            let len = p.bytes.len() as u64;
-            let target = match p.client {
-                None => {
-                    counters.world_frames.fetch_add(1, Ordering::Relaxed);
-                    counters.world_bytes.fetch_add(len, Ordering::Relaxed);
-                    world_publisher.as_ref()
-                }
-                Some(c) => {
-                    counters.client_frames.fetch_add(1, Ordering::Relaxed);
-                    counters.client_bytes.fetch_add(len, Ordering::Relaxed);
-                    listeners.get(&c).and_then(|l| l.publisher.as_ref())
-                }
-            };
-            deferred += u64::from(p.deferred);
-            match target {
-                Some(publisher) => {
-                    let _ = publisher.put(p.bytes).encoding(p.encoding.zenoh_tag()).wait();
-                }
-                None => {
-                    let _ =
-                        session.put(p.key, p.bytes).encoding(p.encoding.zenoh_tag()).congestion_control(drop).wait();
-                }
-            }
-        }
-        counters.deferred.fetch_add(deferred, Ordering::Relaxed);
-        counters.busy_ns.fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
     }
 }
 
@@ -844,7 +389,7 @@ mod tests {
     use glam::DQuat;
     use impact_core::scene::Scene;
     use impact_core::sim::world::NewBody;
-    use impact_protocol::decode;
+    use impact_protocol::{decode, BodyInfo, ServerMessage};
 
     /// The arena with a player sphere for each of `players` clients, spread along x.
     fn arena(players: u32) -> (impact_core::sim::World, Vec<Watcher>) {
@@ -922,6 +467,20 @@ mod tests {
                 let mut dead = vec![false; w.bodies.len()];
                 dead[w.bodies.len() / 2] = true;
                 w.bodies.remove_flagged(&dead);
+            }
+            // And add one now and then: every body after it in entity order moves up a place.
+            if frame % 5 == 3 {
+                let class = w.config.classes.props.iter().position(|p| p.name == "player").unwrap();
+                w.spawn(NewBody {
+                    class: impact_core::sim::world::ClassId(class as u16),
+                    shape: impact_core::geometry::Shape::Sphere { radius: 0.5 },
+                    pos: DVec3::new(f64::from(frame), 3.0, -5.0),
+                    vel: DVec3::ZERO,
+                    rot: DQuat::IDENTITY,
+                    inv_mass: 1.0,
+                    owner: None,
+                })
+                .unwrap();
             }
             w.tick = Tick(frame);
             let out = s.frames(&Capture::of(&w, Vec::new()), true, true);

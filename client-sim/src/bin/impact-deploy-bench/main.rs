@@ -6,6 +6,10 @@
 //! - `mesh`: clients in separate sessions, half on each of two meshed routers.
 //! - `failover`: a primary killed with SIGKILL under load, its standby taking over, N times.
 //! - `replay`: a load test recorded with `--record`, replayed offline, every hash checked.
+//! - `players`: what a watching player costs the server, the server on one CPU and the load on
+//!   another (`players.rs`).
+
+mod players;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
@@ -83,6 +87,9 @@ enum Suite {
         #[arg(long, default_value_t = 60)]
         seconds: u64,
     },
+    /// What a watching player costs: the server on one CPU, the load on another, by player count
+    /// with and without state streams.
+    Players(players::Players),
 }
 
 fn main() -> Result<()> {
@@ -91,6 +98,7 @@ fn main() -> Result<()> {
         Suite::Mesh { clients, worlds, balls, seconds } => mesh(clients, worlds, balls, seconds),
         Suite::Failover { clients, kills, hang } => failover(clients, kills, hang),
         Suite::Replay { clients, seconds } => replay(clients, seconds),
+        Suite::Players(p) => players::players(&p),
     }
 }
 
@@ -105,7 +113,19 @@ fn progress(msg: &str) {
 
 /// The arena server on `listen`, connected to `connect` if given.
 fn server(name: &str, listen: &str, connect: Option<&str>, extra: &[&str]) -> Result<Proc> {
-    let mut cmd = Command::new(binary("impact-server"));
+    server_on(name, listen, connect, extra, None)
+}
+
+/// The same, kept on one CPU when `cpu` is given (`taskset`, as an operator would).
+fn server_on(name: &str, listen: &str, connect: Option<&str>, extra: &[&str], cpu: Option<usize>) -> Result<Proc> {
+    let mut cmd = match cpu {
+        Some(c) => {
+            let mut t = Command::new("taskset");
+            t.args(["--cpu-list", &c.to_string()]).arg(binary("impact-server"));
+            t
+        }
+        None => Command::new(binary("impact-server")),
+    };
     cmd.arg("--scene").arg(impact_core::scene::Scene::bundled_path("arena")).args(["--listen", listen]);
     if let Some(c) = connect {
         cmd.args(["--connect", c]);
@@ -127,7 +147,11 @@ fn router_proc(name: &str, listen: &str, connect: &[String]) -> Proc {
 
 /// Seconds of CPU (user + system) a process has used.
 fn cpu_s(pid: u32) -> f64 {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+    stat_cpu_s(&std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default())
+}
+
+/// Seconds of CPU (user + system) in a `/proc/.../stat` line (a process's or a thread's).
+fn stat_cpu_s(stat: &str) -> f64 {
     // Fields after the command's closing parenthesis: utime is the 12th, stime the 13th.
     let rest = stat.rsplit(')').next().unwrap_or("");
     let f: Vec<&str> = rest.split_whitespace().collect();

@@ -1,0 +1,390 @@
+//! One receiver's frame: what it holds against what is near, within its byte budget, and the
+//! bodies' infos and the avatar's state the frame carries.
+//!
+//! A receiver's work is the bodies it holds and the bodies near it, nothing else: what it holds
+//! is found in the frame's entries through the index each body had last frame (carried over by
+//! [`Remap`] once a frame for every receiver), and marks stamped per receiver say which bodies
+//! are near and which held, so neither list is sorted or searched.
+
+use super::{Capture, Entry, Publish, Src};
+use glam::DVec3;
+use impact_protocol::{
+    encode, AvatarState, AvatarTouch, BodyInfo, BodyMotion, BodyShape, ClientId, Encoding, EntityId, GameState,
+    ServerMessage, StateFrame, Tick,
+};
+
+/// What a receiver holds: the bodies it was sent (in no order) and the motion it was sent.
+#[derive(Debug, Default)]
+pub(super) struct Held {
+    pub(super) bodies: Vec<HeldBody>,
+    pub(super) frame: u32,
+    /// Bytes it may still spend (token bucket).
+    pub(super) tokens: f64,
+    pub(super) key: String,
+}
+
+#[derive(Clone, Copy, Debug)]
+pub(super) struct HeldBody {
+    /// Its index in the entries of the frame it was last built in.
+    at: u32,
+    motion: BodyMotion,
+    /// The [`Entry::info`] it was sent.
+    info: u64,
+    /// Frames it has changed without being sent.
+    waited: u32,
+}
+
+/// Upper bounds on the MessagePack size of a frame's parts (the budget is kept on these, so
+/// the bytes sent never exceed it).
+const FRAME_BYTES: usize = 160;
+const MOTION_BYTES: usize = 40;
+const INFO_BYTES: usize = 210; // plus the class name; 90 of it the rotation and the local shape
+const LEFT_BYTES: usize = 5;
+/// The avatar's state on a client's stream (its key, six fields, f64s at 9 bytes), and each of
+/// its contacts.
+const AVATAR_BYTES: usize = 136;
+const TOUCH_BYTES: usize = 128;
+
+pub(super) fn f32x3(v: DVec3) -> [f32; 3] {
+    [v.x as f32, v.y as f32, v.z as f32]
+}
+
+fn changed(a: &BodyMotion, b: &BodyMotion) -> bool {
+    let far = |x: &[f32; 3], y: &[f32; 3], eps: f32| x.iter().zip(y).any(|(p, q)| (p - q).abs() > eps);
+    a.3 != b.3 || far(&a.1, &b.1, 1e-3) || far(&a.2, &b.2, 1e-3)
+}
+
+/// What can change in a body's info, as a hash (see [`Entry::info`]).
+pub(super) fn info_key(class: impact_core::sim::world::ClassId, game: &GameState, teleported: Option<Tick>) -> u64 {
+    use std::hash::{Hash, Hasher};
+    if game.is_empty() && teleported.is_none() {
+        return u64::from(class.0);
+    }
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    class.0.hash(&mut h);
+    teleported.map(|t| t.0).hash(&mut h);
+    for (k, v) in &game.0 {
+        k.hash(&mut h);
+        v.to_bits().hash(&mut h);
+    }
+    h.finish() | 1 << 63
+}
+
+/// A body's class id.
+fn class_of(cap: &Capture, e: &Entry) -> Option<impact_core::sim::world::ClassId> {
+    match e.src {
+        Src::Dynamic(i) => Some(cap.table.class[i]),
+        Src::Static(i) => Some(cap.statics.class[i]),
+        Src::Terrain => cap.statics.terrain.as_ref().map(|t| t.class),
+    }
+}
+
+/// A body's class name ("" if the class is unknown).
+fn class_name<'a>(cap: &'a Capture, e: &Entry) -> &'a str {
+    class_of(cap, e).and_then(|c| cap.config.classes.props.get(c.0 as usize)).map_or("", |p| p.name.as_str())
+}
+
+fn info(cap: &Capture, e: &Entry) -> BodyInfo {
+    let half = (e.hi - e.lo) * 0.5;
+    let pos = DVec3::new(f64::from(e.motion.1[0]), f64::from(e.motion.1[1]), f64::from(e.motion.1[2]));
+    let offset = (e.hi + e.lo) * 0.5 - pos;
+    let (owner, shape) = match e.src {
+        Src::Dynamic(i) => (cap.table.owner[i], Some((&cap.table.shape[i], cap.table.rot[i]))),
+        Src::Static(i) => (None, Some((&cap.statics.shape[i], cap.statics.rot[i]))),
+        Src::Terrain => (None, None),
+    };
+    let primitive = |s: &impact_core::geometry::Shape| {
+        use impact_core::geometry::ShapeKind as K;
+        matches!(s.kind(), K::Sphere | K::Capsule | K::Cuboid | K::Ellipsoid).then(|| s.to_spec())
+    };
+    let rotation = shape.map(|(_, r)| r).filter(|r| *r != glam::DQuat::IDENTITY).map(|r| r.as_quat().to_array());
+    BodyInfo {
+        entity: e.motion.0,
+        class: class_name(cap, e).to_string(),
+        owner,
+        shape: shape.map_or(BodyShape::Terrain, |(s, _)| shape_of(s)),
+        half_extents_m: f32x3(half),
+        offset_m: f32x3(offset),
+        fixed: !matches!(e.src, Src::Dynamic(_)),
+        rotation,
+        local_shape: shape.and_then(|(s, _)| primitive(s)),
+        state: match e.src {
+            Src::Dynamic(i) => cap.table.game[i].clone(),
+            _ => GameState::default(),
+        },
+        teleported: match e.src {
+            Src::Dynamic(i) => cap.table.teleported[i],
+            _ => None,
+        },
+    }
+}
+
+/// The avatar's whole core state at the capture's tick (PROTOCOL.md, "Prediction"): exact
+/// position and velocity, its sleep state, and its contacts with static geometry.
+pub(super) fn avatar_state(cap: &Capture, avatar: EntityId) -> Option<AvatarState> {
+    let i = cap.table.id.binary_search(&avatar).ok()?;
+    let is_body = |e: EntityId| cap.table.id.binary_search(&e).is_ok();
+    let touching = cap
+        .touching
+        .iter()
+        .filter_map(|t| {
+            let other = if t.a == avatar {
+                t.b
+            } else if t.b == avatar {
+                t.a
+            } else {
+                return None;
+            };
+            (!is_body(other)).then(|| AvatarTouch {
+                other,
+                normal: t.normal.to_array(),
+                depth_m: t.depth,
+                impulse: t.impulse,
+                friction_impulse: t.friction_impulse.to_array(),
+            })
+        })
+        .collect();
+    Some(AvatarState {
+        entity: avatar,
+        position: cap.pos[i].to_array(),
+        velocity: cap.vel[i].to_array(),
+        asleep: cap.asleep[i],
+        still_ticks: cap.still[i],
+        touching,
+        class: Some(cap.table.class[i].0),
+        teleported: cap.table.teleported[i],
+    })
+}
+
+fn shape_of(s: &impact_core::geometry::Shape) -> BodyShape {
+    use impact_core::geometry::ShapeKind as K;
+    match s.kind() {
+        K::Sphere => BodyShape::Sphere,
+        K::Capsule => BodyShape::Capsule,
+        K::Cuboid => BodyShape::Cuboid,
+        K::Ellipsoid => BodyShape::Ellipsoid,
+        K::Convex => BodyShape::Convex,
+        K::TriMesh => BodyShape::Trimesh,
+    }
+}
+
+/// No entry: a body gone since the last frame.
+const GONE: u32 = u32::MAX;
+
+/// Last frame's entry index of each body to this frame's (bodies are added and removed between
+/// frames, so indices shift): made once a frame from both frames' ids, both in entity order.
+#[derive(Debug, Default)]
+pub(super) struct Remap {
+    ids: Vec<EntityId>,
+    to: Vec<u32>,
+}
+
+impl Remap {
+    /// Moves on to the frame of `entries`.
+    pub(super) fn advance(&mut self, entries: &[Entry]) {
+        self.to.clear();
+        self.to.resize(self.ids.len(), GONE);
+        let mut k = 0;
+        for (old, id) in self.ids.iter().enumerate() {
+            while k < entries.len() && entries[k].motion.0 < *id {
+                k += 1;
+            }
+            if k < entries.len() && entries[k].motion.0 == *id {
+                self.to[old] = k as u32;
+            }
+        }
+        self.ids.clear();
+        self.ids.extend(entries.iter().map(|e| e.motion.0));
+    }
+
+    fn get(&self, old: u32) -> u32 {
+        self.to.get(old as usize).copied().unwrap_or(GONE)
+    }
+}
+
+/// What a frame is built with besides the receiver: stamps over the entries (which are near the
+/// receiver, at what distance, and which it holds) and buffers kept between receivers.
+#[derive(Debug, Default)]
+pub(super) struct Marks {
+    stamp: u32,
+    near: Vec<u32>,
+    dist: Vec<f64>,
+    held: Vec<u32>,
+    wants: Vec<(f64, EntityId, u32, Want)>,
+    spare: Vec<HeldBody>,
+}
+
+impl Marks {
+    /// A fresh stamp for `n` entries: no entry is marked with it.
+    fn begin(&mut self, n: usize) -> u32 {
+        self.stamp = self.stamp.wrapping_add(1);
+        if self.stamp == 0 {
+            self.near.fill(0);
+            self.held.fill(0);
+            self.stamp = 1;
+        }
+        for v in [&mut self.near, &mut self.held] {
+            v.resize(n, 0);
+        }
+        self.dist.resize(n, 0.0);
+        self.stamp
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Want {
+    Enter,
+    Move(usize),
+}
+
+/// The frame that brings `held` to the bodies of `cands` (`(priority distance, entry)`, in any
+/// order), spending at most `budget` estimated bytes; updates `held` to what it sends.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn build(
+    held: &mut Held,
+    (entries, remap): (&[Entry], &Remap),
+    marks: &mut Marks,
+    cap: &Capture,
+    cands: &[(f64, u32)],
+    budget: Option<f64>,
+    full: bool,
+    centre: Option<DVec3>,
+) -> StateFrame {
+    let mut frame = StateFrame {
+        tick: cap.tick,
+        frame: held.frame,
+        full,
+        entered: Vec::new(),
+        moved: Vec::new(),
+        left: Vec::new(),
+        deferred: 0,
+        centre: centre.map(f32x3),
+        avatar: None,
+    };
+    held.frame = held.frame.wrapping_add(1);
+    let mut spend = FRAME_BYTES;
+    let stamp = marks.begin(entries.len());
+    for &(d, i) in cands {
+        marks.near[i as usize] = stamp;
+        marks.dist[i as usize] = d;
+    }
+    let mut wants = std::mem::take(&mut marks.wants);
+    wants.clear();
+    let mut keep = std::mem::take(&mut marks.spare);
+    keep.clear();
+    // What it holds: still near (sent again if changed) or gone from its area.
+    let old = std::mem::take(&mut held.bodies);
+    for b in &old {
+        let i = remap.get(b.at);
+        if i == GONE || marks.near[i as usize] != stamp {
+            if !full {
+                frame.left.push(b.motion.0);
+                spend += LEFT_BYTES;
+            }
+            continue;
+        }
+        marks.held[i as usize] = stamp;
+        let (e, d) = (&entries[i as usize], marks.dist[i as usize]);
+        let b = HeldBody { at: i, ..*b };
+        if full {
+            wants.push((d, e.motion.0, i, Want::Enter));
+        } else if b.info != e.info {
+            // Its class or game state changed: its info again, from the budget first.
+            wants.push((0.0, e.motion.0, i, Want::Enter));
+        } else if changed(&b.motion, &e.motion) {
+            wants.push((d / (1.0 + f64::from(b.waited)), e.motion.0, i, Want::Move(keep.len())));
+            keep.push(b);
+        } else {
+            keep.push(b);
+        }
+    }
+    // What is near and it does not hold: new to it.
+    for &(d, i) in cands {
+        if marks.held[i as usize] != stamp {
+            wants.push((d, entries[i as usize].motion.0, i, Want::Enter));
+        }
+    }
+    if full {
+        keep.clear();
+    }
+    // Only as many as the budget could hold at the cheapest need ordering: pick them, sort them;
+    // the rest wait (in any order: each just waits).
+    let cmp = |a: &(f64, EntityId, u32, Want), b: &(f64, EntityId, u32, Want)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
+    let fit = budget.map_or(wants.len(), |b| ((b - spend as f64).max(0.0) / MOTION_BYTES as f64) as usize + 1);
+    if fit < wants.len() {
+        wants.select_nth_unstable_by(fit, cmp);
+        wants[..fit].sort_by(cmp);
+    } else {
+        wants.sort_by(cmp);
+    }
+    for &(_, _, i, want) in &wants {
+        let e = &entries[i as usize];
+        let cost = match want {
+            Want::Enter => info_bytes(cap, e) + MOTION_BYTES,
+            Want::Move(_) => MOTION_BYTES,
+        };
+        if let Some(b) = budget {
+            if (spend + cost) as f64 > b {
+                frame.deferred += 1;
+                if let Want::Move(k) = want {
+                    keep[k].waited = keep[k].waited.saturating_add(1);
+                }
+                continue;
+            }
+        }
+        spend += cost;
+        frame.moved.push(e.motion);
+        match want {
+            Want::Move(k) => keep[k] = HeldBody { motion: e.motion, waited: 0, ..keep[k] },
+            Want::Enter => {
+                frame.entered.push(info(cap, e));
+                keep.push(HeldBody { at: i, motion: e.motion, info: e.info, waited: 0 });
+            }
+        }
+    }
+    frame.moved.sort_unstable_by_key(|m| m.0);
+    frame.entered.sort_unstable_by_key(|i| i.entity);
+    frame.left.sort_unstable();
+    held.bodies = keep;
+    marks.spare = old;
+    marks.wants = wants;
+    frame
+}
+
+/// The bytes a body's info is budgeted at.
+fn info_bytes(cap: &Capture, e: &Entry) -> usize {
+    let state = match e.src {
+        Src::Dynamic(i) => state_bytes(&cap.table.game[i]),
+        _ => 0,
+    };
+    INFO_BYTES + class_name(cap, e).len() + state
+}
+
+/// A game state's MessagePack size at most: each name's string and a float.
+fn state_bytes(g: &GameState) -> usize {
+    g.0.keys().map(|k| k.len() + 2 + 9).sum::<usize>() + 8
+}
+
+/// The budgeted size of a frame: at least its MessagePack size.
+pub(super) fn estimate(f: &StateFrame) -> usize {
+    let infos: usize = f.entered.iter().map(|i| INFO_BYTES + i.class.len() + state_bytes(&i.state)).sum();
+    let avatar = f.avatar.as_ref().map_or(0, |a| AVATAR_BYTES + a.touching.len() * TOUCH_BYTES);
+    FRAME_BYTES + infos + f.moved.len() * MOTION_BYTES + f.left.len() * LEFT_BYTES + avatar
+}
+
+pub(super) fn publish(
+    key: String,
+    client: Option<ClientId>,
+    frame: StateFrame,
+    encoding: Encoding,
+    keep: bool,
+) -> Option<Publish> {
+    let deferred = frame.deferred;
+    let msg = ServerMessage::State(frame);
+    let bytes = encode(&msg, encoding).ok()?;
+    let frame = match msg {
+        ServerMessage::State(f) if keep => Some(f),
+        _ => None,
+    };
+    Some(Publish { key, bytes, encoding, client, deferred, frame })
+}

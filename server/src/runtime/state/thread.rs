@@ -1,0 +1,90 @@
+//! The state thread: builds and publishes each capture's frames on Zenoh.
+
+use super::{Capture, StateCounters, StateOptions, Streams};
+use impact_protocol::{keys, ClientId, Encoding, WorldId};
+use std::collections::BTreeMap;
+use std::sync::atomic::Ordering;
+use std::sync::mpsc::Receiver;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// Whether anyone subscribes to what `p` publishes (`true` when it cannot tell).
+fn matching(p: Option<&zenoh::pubsub::Publisher<'static>>) -> bool {
+    use zenoh::Wait;
+    p.is_none_or(|p| p.matching_status().wait().map(|m| m.matching()).unwrap_or(true))
+}
+
+/// A client's publisher, and whether it was listening when last asked.
+struct Listener {
+    publisher: Option<zenoh::pubsub::Publisher<'static>>,
+    listening: bool,
+    next_check: u64,
+}
+
+/// The state thread: builds and publishes frames for every capture until the queue closes.
+///
+/// Streams nobody subscribes to are not built: the world stream's publisher is asked every frame,
+/// each client's once a second (a client that subscribes is seen within a second and starts with
+/// a full frame), so players that never look at the state cost only the question.
+pub fn run(
+    session: zenoh::Session,
+    world: WorldId,
+    opts: StateOptions,
+    encoding: Encoding,
+    rx: Receiver<Capture>,
+    counters: Arc<StateCounters>,
+) {
+    use zenoh::Wait;
+    let drop = zenoh::qos::CongestionControl::Drop;
+    let publisher = |key: String| session.declare_publisher(key).congestion_control(drop).wait().ok();
+    let world_publisher = publisher(keys::STATE.key(&world, None));
+    let mut listeners: BTreeMap<ClientId, Listener> = BTreeMap::new();
+    let check_every = u64::from(opts.hz.max(1));
+    let mut streams = Streams::new(world.clone(), opts, encoding);
+    for (n, mut cap) in rx.into_iter().enumerate() {
+        let t0 = Instant::now();
+        let n = n as u64;
+        listeners.retain(|c, _| cap.watchers.iter().any(|v| v.client == *c));
+        cap.watchers.retain(|v| {
+            let l = listeners.entry(v.client).or_insert_with(|| Listener {
+                publisher: publisher(keys::CLIENT_STATE.key(&world, Some(v.client))),
+                listening: false,
+                next_check: n,
+            });
+            if n >= l.next_check {
+                l.listening = matching(l.publisher.as_ref());
+                l.next_check = n + check_every;
+            }
+            l.listening
+        });
+        let frames = streams.frames(&cap, matching(world_publisher.as_ref()), false);
+        let mut deferred = 0;
+        for p in frames {
+            let len = p.bytes.len() as u64;
+            let target = match p.client {
+                None => {
+                    counters.world_frames.fetch_add(1, Ordering::Relaxed);
+                    counters.world_bytes.fetch_add(len, Ordering::Relaxed);
+                    world_publisher.as_ref()
+                }
+                Some(c) => {
+                    counters.client_frames.fetch_add(1, Ordering::Relaxed);
+                    counters.client_bytes.fetch_add(len, Ordering::Relaxed);
+                    listeners.get(&c).and_then(|l| l.publisher.as_ref())
+                }
+            };
+            deferred += u64::from(p.deferred);
+            match target {
+                Some(publisher) => {
+                    let _ = publisher.put(p.bytes).encoding(p.encoding.zenoh_tag()).wait();
+                }
+                None => {
+                    let _ =
+                        session.put(p.key, p.bytes).encoding(p.encoding.zenoh_tag()).congestion_control(drop).wait();
+                }
+            }
+        }
+        counters.deferred.fetch_add(deferred, Ordering::Relaxed);
+        counters.busy_ns.fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
+    }
+}
