@@ -3,12 +3,14 @@
 //! same input file give the same events and the same final state hash, bit for bit.
 
 use impact_core::scene::Scene;
+use impact_core::sim::ray_index::RayIndex;
 use impact_core::sim::{Plan, Pool, Stepper, TickInput, TickOutput, World};
 use impact_protocol::limits::MAX_CLIENT_MESSAGE_BYTES;
 use impact_protocol::{ClientMessage, CollisionEvent, Encoding, Phase, Response};
 use std::collections::BTreeMap;
 use std::io::{BufRead, Write};
 use std::path::Path;
+use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 /// Why an offline run failed.
@@ -125,7 +127,8 @@ pub fn run(
     // only when some input asks for it.
     let rewinds = inputs.values().flatten().any(|i| i.view_tick.is_some());
     let window = world.config.window_ticks as usize;
-    let mut past: std::collections::VecDeque<World> = std::collections::VecDeque::new();
+    // Each past world beside its ray index, built when a shot first looks at it.
+    let mut past: std::collections::VecDeque<(World, OnceLock<RayIndex>)> = std::collections::VecDeque::new();
     let started = Instant::now();
     for k in 0..ticks {
         let tick = world.tick;
@@ -133,10 +136,11 @@ pub fn run(
         let tick_inputs = match inputs.get(&tick.0) {
             Some(list) if rewinds => {
                 rewound = list.clone();
-                let oldest = past.front().map_or(tick, |w| w.tick);
+                let oldest = past.front().map_or(tick, |(w, _)| w.tick);
                 let max_rewind = world.config.max_rewind_ticks;
                 crate::rollback::hitscan::rewind_rays(tick, &mut rewound, max_rewind, oldest, &world, |t| {
-                    past.get(t.0.checked_sub(oldest.0)? as usize)
+                    let (w, index) = past.get(t.0.checked_sub(oldest.0)? as usize)?;
+                    Some((w, index.get_or_init(|| RayIndex::build(w))))
                 });
                 &rewound
             }
@@ -147,7 +151,7 @@ pub fn run(
             if past.len() == window {
                 past.pop_front();
             }
-            past.push_back(world.clone());
+            past.push_back((world.clone(), OnceLock::new()));
         }
         stepper.step(&mut world, tick_inputs, &mut out);
         skipped += out.skipped.len();

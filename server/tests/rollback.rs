@@ -414,3 +414,40 @@ fn the_self_check_finds_no_desync_and_catches_a_planted_one() {
     }
     assert!(s.stats.desyncs > 0, "a one-ulp change must be caught");
 }
+
+/// A past tick's ray index is built from its world once; a re-simulation that changes that world
+/// (through `state_mut`) drops it, and the next shot looking there sees the world as it is now,
+/// not as the index was built (the same bodies, moved: nothing but the index would tell).
+#[test]
+fn a_past_worlds_ray_index_follows_a_change_to_that_world() {
+    use impact_core::sim::ray::Ray;
+    use impact_core::sim::ray_index::cast_many_indexed;
+    use impact_server::rollback::history::Frame;
+    let (_, s) = range_at(106);
+    let state = s.frame(Tick(100)).expect("tick 100 is in the history").state.clone();
+    let mut frame = Frame {
+        tick: Tick(100),
+        state,
+        inputs: Vec::new(),
+        system: Vec::new(),
+        events: Vec::new(),
+        revision: 0,
+        paths: Vec::new(),
+        capped: false,
+        resolutions: 0,
+        ray_index: Default::default(),
+    };
+    let ray = Ray { origin: glam::DVec3::ZERO, dir: glam::DVec3::X, max_m: 50.0, exclude: Some(EntityId(0)) };
+    let cast = |f: &Frame| {
+        let mut out = Vec::new();
+        cast_many_indexed(&f.state, f.ray_index(), &[ray], &mut out);
+        out[0].as_ref().map(|h| h.entity)
+    };
+    // At tick 100 the target stands in the line of fire. Moved out of it, and the index built
+    // there; then back into it, each time as a re-simulation could leave it.
+    let target = frame.state.bodies.slot(EntityId(1)).unwrap();
+    frame.state_mut().bodies.pos[target].z += 10.0;
+    assert_eq!(cast(&frame), None, "moved out of the line");
+    frame.state_mut().bodies.pos[target].z -= 10.0;
+    assert_eq!(cast(&frame), Some(EntityId(1)), "moved back in: the index files it where it is now");
+}

@@ -11,6 +11,7 @@ pub mod output;
 pub mod overlaps;
 pub mod plan;
 pub mod ray;
+pub mod ray_index;
 pub mod step;
 pub mod world;
 

@@ -25,7 +25,7 @@ pub struct Ray {
 }
 
 /// The nearest hit so far of one ray: `(distance, entity, normal)`.
-type Best = Option<(f64, EntityId, DVec3)>;
+pub(crate) type Best = Option<(f64, EntityId, DVec3)>;
 
 /// The first hit of the ray `origin + s * dir` (`dir` unit, `0 <= s <= max_m`), skipping
 /// `exclude` (the shooter).
@@ -46,7 +46,7 @@ pub fn cast_many(w: &World, rays: &[Ray], out: &mut Vec<Option<RayHit>>) {
     out.extend(rays.iter().zip(best).map(|(r, b)| hit_of(r, b)));
 }
 
-fn hit_of(ray: &Ray, best: Best) -> Option<RayHit> {
+pub(crate) fn hit_of(ray: &Ray, best: Best) -> Option<RayHit> {
     best.map(|(s, entity, normal)| RayHit {
         entity,
         point: (ray.origin + ray.dir * s).to_array(),
@@ -67,42 +67,55 @@ fn consider(best: &mut Best, hit: Option<(f64, DVec3)>, id: EntityId, max_m: f64
 
 /// The nearest hit of each ray, into `best` (one per ray, `None` to start).
 fn first_hits(w: &World, rays: &[Ray], best: &mut [Best]) {
-    // Dynamic bodies are culled by their bounding spheres (centre and radius are at hand; a box
-    // would need the orientation turned into a matrix per body per ray): a body a ray can hit
-    // first, at a distance up to its nearest hit so far (ties included), has its sphere within
-    // reach of the segment from the origin to that distance. One distance test per body and ray,
-    // and a branch that is rarely taken. Culling only skips bodies a ray cannot hit first, so the
-    // answer is the scan's.
     let b = &w.bodies;
     for i in 0..b.len() {
-        let p = b.pos[i];
-        // Conservative by a hair: rounding must never cull a grazing hit.
-        let r = b.radius[i] * (1.0 + 1e-9) + 1e-9;
         for (ray, best) in rays.iter().zip(best.iter_mut()) {
-            let reach = best.map_or(ray.max_m, |(bs, _, _)| bs);
-            let to = p - ray.origin;
-            let d = to - ray.dir * to.dot(ray.dir).clamp(0.0, reach);
-            if d.length_squared() > r * r || Some(b.id[i]) == ray.exclude {
-                continue;
-            }
-            let hit = cast_shape(&b.shape[i], p, b.rot[i], ray.origin, ray.dir, ray.max_m);
-            consider(best, hit, b.id[i], ray.max_m);
+            body_hit(w, i, ray, best);
         }
     }
-    let s = &w.statics;
     for (ray, best) in rays.iter().zip(best.iter_mut()) {
-        let end = ray.origin + ray.dir * ray.max_m;
-        let ray_box = Aabb { min: ray.origin.min(end), max: ray.origin.max(end) };
-        for k in 0..s.id.len() {
-            if Some(s.id[k]) == ray.exclude || !s.aabb[k].overlaps(&ray_box) {
-                continue;
-            }
-            let hit = cast_shape(&s.shape[k], s.pos[k], s.rot[k], ray.origin, ray.dir, ray.max_m);
-            consider(best, hit, s.id[k], ray.max_m);
+        static_hits(w, ray, best);
+    }
+}
+
+/// Dynamic body `i` against `ray`, kept in `best` if nearer.
+///
+/// Bodies are culled by their bounding spheres (centre and radius are at hand; a box would need
+/// the orientation turned into a matrix per body per ray): a body a ray can hit first, at a
+/// distance up to its nearest hit so far (ties included), has its sphere within reach of the
+/// segment from the origin to that distance. One distance test per body and ray, and a branch
+/// that is rarely taken. Culling only skips bodies a ray cannot hit first, so the answer is the
+/// scan's.
+#[inline]
+pub(crate) fn body_hit(w: &World, i: usize, ray: &Ray, best: &mut Best) {
+    let b = &w.bodies;
+    let p = b.pos[i];
+    // Conservative by a hair: rounding must never cull a grazing hit.
+    let r = b.radius[i] * (1.0 + 1e-9) + 1e-9;
+    let reach = best.map_or(ray.max_m, |(bs, _, _)| bs);
+    let to = p - ray.origin;
+    let d = to - ray.dir * to.dot(ray.dir).clamp(0.0, reach);
+    if d.length_squared() > r * r || Some(b.id[i]) == ray.exclude {
+        return;
+    }
+    let hit = cast_shape(&b.shape[i], p, b.rot[i], ray.origin, ray.dir, ray.max_m);
+    consider(best, hit, b.id[i], ray.max_m);
+}
+
+/// The static bodies and the terrain against `ray`.
+pub(crate) fn static_hits(w: &World, ray: &Ray, best: &mut Best) {
+    let s = &w.statics;
+    let end = ray.origin + ray.dir * ray.max_m;
+    let ray_box = Aabb { min: ray.origin.min(end), max: ray.origin.max(end) };
+    for k in 0..s.id.len() {
+        if Some(s.id[k]) == ray.exclude || !s.aabb[k].overlaps(&ray_box) {
+            continue;
         }
-        if let Some(t) = &s.terrain {
-            consider(best, cast_heightfield(&t.field, ray.origin, ray.dir, ray.max_m), t.id, ray.max_m);
-        }
+        let hit = cast_shape(&s.shape[k], s.pos[k], s.rot[k], ray.origin, ray.dir, ray.max_m);
+        consider(best, hit, s.id[k], ray.max_m);
+    }
+    if let Some(t) = &s.terrain {
+        consider(best, cast_heightfield(&t.field, ray.origin, ray.dir, ray.max_m), t.id, ray.max_m);
     }
 }
 
@@ -331,6 +344,71 @@ mod tests {
             cast_many(&w, &rays, &mut many);
             proptest::prop_assert_eq!(&many[0], &fast);
             proptest::prop_assert_eq!(&many[1], &cast(&w, -origin, -dir, max_m, None));
+            // Through the world's index: the same answers, bit for bit.
+            let index = crate::sim::ray_index::RayIndex::build(&w);
+            let mut indexed = Vec::new();
+            crate::sim::ray_index::cast_many_indexed(&w, &index, &rays, &mut indexed);
+            proptest::prop_assert_eq!(&indexed, &many);
+        }
+
+        /// Many small bodies, so the index has many cells and a ray crosses many: its answers are
+        /// the scan's, for rays from inside and outside the bodies' bounds, along axes and not.
+        #[test]
+        fn indexed_cast_equals_the_scan_in_a_crowd(
+            seed in 0..u64::MAX,
+            count in 1..800usize,
+            spread in 1.0..200.0f64,
+            rays in proptest::collection::vec(
+                ((-1.5..1.5f64, -1.5..1.5f64, -1.5..1.5f64), (-1.0..1.0f64, -1.0..1.0f64, -1.0..1.0f64), 0..4u8, 0.5..400.0f64),
+                1..12),
+        ) {
+            let text = "[world]\nname = \"r\"\n[[class]]\nname = \"c\"\n";
+            let mut w = crate::scene::Scene::parse(text, "<rays>").unwrap().world;
+            let mut x = seed | 1;
+            let mut unit = move || {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                (x >> 11) as f64 / (1u64 << 53) as f64
+            };
+            for _ in 0..count {
+                let pos = DVec3::new(unit() - 0.5, unit() - 0.5, unit() - 0.5) * spread;
+                // Mostly small, now and then one larger than a cell.
+                let radius = if unit() < 0.02 { 0.5 * spread * unit() + 0.1 } else { 0.05 + 1.5 * unit() };
+                let shape = if unit() < 0.5 {
+                    Shape::Sphere { radius }
+                } else {
+                    Shape::Cuboid { half_extents: DVec3::new(radius, 0.5 * radius, 0.8 * radius) }
+                };
+                let rot = DQuat::from_rotation_y(6.0 * unit());
+                let body = crate::sim::world::NewBody {
+                    class: crate::sim::world::ClassId(0), shape, pos, vel: DVec3::ZERO, rot, inv_mass: 1.0, owner: None,
+                };
+                w.spawn(body).unwrap();
+            }
+            let rays: Vec<Ray> = rays
+                .iter()
+                .enumerate()
+                .map(|(k, (o, d, axis, max_m))| {
+                    let mut dir = DVec3::new(d.0, d.1, d.2 + 1e-3);
+                    if *axis < 3 {
+                        // Along an axis: the walk's zero steps.
+                        dir = DVec3::ZERO;
+                        dir[*axis as usize] = if d.0 < 0.0 { -1.0 } else { 1.0 };
+                    }
+                    Ray {
+                        origin: DVec3::new(o.0, o.1, o.2) * spread,
+                        dir: dir.normalize(),
+                        max_m: *max_m,
+                        exclude: (k % 2 == 0).then(|| w.bodies.id[k % w.bodies.len()]),
+                    }
+                })
+                .collect();
+            let (mut scan, mut indexed) = (Vec::new(), Vec::new());
+            cast_many(&w, &rays, &mut scan);
+            let index = crate::sim::ray_index::RayIndex::build(&w);
+            crate::sim::ray_index::cast_many_indexed(&w, &index, &rays, &mut indexed);
+            proptest::prop_assert_eq!(indexed, scan);
         }
     }
 

@@ -2,16 +2,19 @@
 //! and the events published for it. Its length never exceeds the window, so memory is fixed once
 //! it is full, however long the server runs.
 
+use impact_core::sim::ray_index::RayIndex;
 use impact_core::sim::{TickInput, World};
 use impact_protocol::{CollisionEvent, Tick};
 use std::collections::VecDeque;
+use std::sync::OnceLock;
 
 /// One past tick.
 #[derive(Debug, Clone)]
 pub struct Frame {
     /// The tick.
     pub tick: Tick,
-    /// The world at the start of the tick, before its inputs.
+    /// The world at the start of the tick, before its inputs. Changed through
+    /// [`Frame::state_mut`] only, which drops the ray index built from it.
     pub state: World,
     /// The inputs applied at the tick.
     pub inputs: Vec<TickInput>,
@@ -29,6 +32,21 @@ pub struct Frame {
     pub capped: bool,
     /// Contact resolutions the tick took (a bound for selective re-simulation's cap check).
     pub resolutions: u32,
+    /// `state`'s bodies filed for ray casts, built when a rewound shot first looks at this tick.
+    pub ray_index: OnceLock<RayIndex>,
+}
+
+impl Frame {
+    /// `state` to change: its ray index is dropped (built again if a shot looks here).
+    pub fn state_mut(&mut self) -> &mut World {
+        self.ray_index = OnceLock::new();
+        &mut self.state
+    }
+
+    /// The index rewound shots at this tick are cast through.
+    pub fn ray_index(&self) -> &RayIndex {
+        self.ray_index.get_or_init(|| RayIndex::build(&self.state))
+    }
 }
 
 /// Frames for consecutive ticks, oldest first, at most `capacity` of them.

@@ -11,6 +11,7 @@
 use glam::DVec3;
 use impact_core::sim::input::{RewoundRay, TickInput};
 use impact_core::sim::ray::{self, Ray};
+use impact_core::sim::ray_index::{self, RayIndex};
 use impact_core::sim::World;
 use impact_protocol::{Action, Tick};
 
@@ -19,15 +20,16 @@ use impact_protocol::{Action, Tick};
 /// `max_rewind_ticks` before `tick`, or than `oldest` (the oldest world `past` holds), is
 /// clamped to the nearest allowed one and marked. `present` is the world at the start of `tick`.
 ///
-/// The rays that look at the same tick are cast together, in one pass over that world's bodies
-/// ([`ray::cast_many`]): a tick's shots from a thousand clients mostly share a few view ticks.
+/// The rays that look at the same past tick are cast together through that world's index
+/// (`past` gives it, built once per past world: [`ray_index::cast_many_indexed`]), so a shot
+/// tests the bodies along its path, not every body.
 pub fn rewind_rays<'a>(
     tick: Tick,
     inputs: &mut [TickInput],
     max_rewind_ticks: u32,
     oldest: Tick,
     present: &'a World,
-    past: impl Fn(Tick) -> Option<&'a World>,
+    past: impl Fn(Tick) -> Option<(&'a World, &'a RayIndex)>,
 ) {
     // (view tick, clamped, input, action, ray), grouped by view tick below.
     let mut shots: Vec<(Tick, bool, usize, u32, Ray)> = Vec::new();
@@ -62,10 +64,15 @@ pub fn rewind_rays<'a>(
     let mut hits = Vec::new();
     for group in shots.chunk_by(|a, b| a.0 == b.0) {
         let view = group[0].0;
-        let Some(world) = (if view == tick { Some(present) } else { past(view) }) else { continue };
         rays.clear();
         rays.extend(group.iter().map(|s| s.4));
-        ray::cast_many(world, &rays, &mut hits);
+        if view == tick {
+            ray::cast_many(present, &rays, &mut hits);
+        } else if let Some((world, index)) = past(view) {
+            ray_index::cast_many_indexed(world, index, &rays, &mut hits);
+        } else {
+            continue;
+        }
         for (s, hit) in group.iter().zip(hits.drain(..)) {
             inputs[s.2].rewound.push(RewoundRay { action: s.3, view_tick: view, clamped: s.1, hit });
         }

@@ -453,7 +453,7 @@ impl Session {
             self.world.config.max_rewind_ticks,
             history.oldest().unwrap_or(tick),
             &self.world,
-            |t| history.get(t).map(|f| &f.state),
+            |t| history.get(t).map(|f| (&f.state, f.ray_index())),
         );
         let system = std::mem::take(&mut self.system);
         let snap = std::time::Instant::now();
@@ -472,8 +472,18 @@ impl Session {
         adv.rays.append(&mut self.out.rays);
         adv.skipped.append(&mut self.out.skipped);
         let resolutions = self.stepper.stats.resolutions;
-        let frame =
-            Frame { tick, state, inputs, system, events: adv.events.clone(), revision: 0, paths, capped, resolutions };
+        let frame = Frame {
+            tick,
+            state,
+            inputs,
+            system,
+            events: adv.events.clone(),
+            revision: 0,
+            paths,
+            capped,
+            resolutions,
+            ray_index: Default::default(),
+        };
         if let Some(old) = self.history.push(frame) {
             // The state after the confirmed tick is the start of the oldest tick still held.
             let after = self.history.oldest().and_then(|t| self.history.get(t)).map_or(0, |f| f.state.state_hash());
@@ -511,7 +521,9 @@ impl Session {
             let history = &self.history;
             let oldest = history.oldest().unwrap_or(tick);
             let max_rewind = w.config.max_rewind_ticks;
-            hitscan::rewind_rays(tick, &mut inputs, max_rewind, oldest, &w, |t| history.get(t).map(|f| &f.state));
+            hitscan::rewind_rays(tick, &mut inputs, max_rewind, oldest, &w, |t| {
+                history.get(t).map(|f| (&f.state, f.ray_index()))
+            });
             self.history.get_mut(tick).expect("held").inputs = inputs;
             let frame = self.history.get(tick).expect("ticks in the window are held");
             let caps = self.stepper.stats.resolution_cap_hits;
@@ -532,7 +544,7 @@ impl Session {
             adv.skipped.append(&mut self.out.skipped);
             self.publish_resimulated(tick, events, adv);
             if k + 1 < now.0 {
-                self.history.get_mut(Tick(k + 1)).expect("held").state = w.clone();
+                *self.history.get_mut(Tick(k + 1)).expect("held").state_mut() = w.clone();
             }
         }
         self.world = w;

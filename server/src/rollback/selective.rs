@@ -264,7 +264,7 @@ pub fn resimulate(s: &mut Session, from: Tick, adv: &mut Advance) -> bool {
         }
         if k + 1 < now.0 {
             let next = s.history.get_mut(Tick(k + 1)).expect("held");
-            patch(&mut next.state, &run.after[n], &reach);
+            patch(next.state_mut(), &run.after[n], &reach);
         } else {
             patch(&mut s.world, &run.after[n], &reach);
         }

@@ -64,7 +64,7 @@ pub fn run(a: &HitscanArgs) -> Result<()> {
             let shot = Action::FireRay { shooter, origin: [-5.0, -5.0, -5.0], direction: dir, max_distance_m: 100.0 };
             TickInput { view_tick: Some(view), ..TickInput::new(ClientId(1), k, vec![shot]) }
         };
-        let past = |t: Tick| s.frame(t).map(|f| &f.state);
+        let past = |t: Tick| s.frame(t).map(|f| (&f.state, f.ray_index()));
         for k in 0..a.shots {
             let mut one = vec![input(k)];
             let t = Instant::now();
