@@ -344,6 +344,9 @@ struct Wiring {
     /// Bytes of every message the clients received on their own keys (answers, events, state).
     down_bytes: Arc<AtomicU64>,
     subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
+    /// Each client's input publisher. Declared, as a game's transport declares it: the key is
+    /// then resolved once, not on every message at the server.
+    inputs: Vec<zenoh::pubsub::Publisher<'static>>,
     tokens: Vec<zenoh::liveliness::LivelinessToken>,
     /// One more for each world the clients moved to.
     generation: u32,
@@ -361,6 +364,7 @@ impl Wiring {
             state_frames: Arc::new(AtomicU64::new(0)),
             down_bytes: Arc::new(AtomicU64::new(0)),
             subscribers: Vec::new(),
+            inputs: Vec::new(),
             tokens: Vec::new(),
             generation: 0,
         };
@@ -374,6 +378,17 @@ impl Wiring {
         for (k, c) in clients.iter().enumerate() {
             self.subscribe_client(cfg, world, k, c)?;
         }
+        self.inputs = clients
+            .iter()
+            .enumerate()
+            .map(|(k, c)| {
+                self.session(k)
+                    .declare_publisher(keys::INPUT.key(world, Some(c.id)))
+                    .encoding(cfg.encoding.zenoh_tag())
+                    .wait()
+                    .map_err(|e| anyhow::anyhow!("declaring an input publisher: {e}"))
+            })
+            .collect::<anyhow::Result<_>>()?;
         let (inbox, generation) = (self.inbox.clone(), self.generation);
         let stats = self.sessions[0]
             .declare_subscriber(keys::STATS.key(world, None))
@@ -496,6 +511,7 @@ impl Wiring {
     fn close(self) {
         drop(self.tokens);
         drop(self.subscribers);
+        drop(self.inputs);
         for s in self.sessions {
             let _ = s.close().wait();
         }
@@ -537,7 +553,6 @@ struct Run<'a> {
     load_start: Instant,
     load_end: Instant,
     server_stopped: bool,
-    input_keys: Vec<String>,
     checks: Vec<DrawCheck>,
     next_check: Instant,
     /// Remote bodies as drawn minus as the server had them, m, and whether each was steady.
@@ -704,7 +719,6 @@ impl Run<'_> {
         Ok(Run {
             cfg,
             walk_mps: None,
-            input_keys: clients.iter().map(|c| keys::INPUT.key(&cfg.world, Some(c.id))).collect(),
             world: cfg.world.clone(),
             retired: Vec::new(),
             clients,
@@ -930,8 +944,7 @@ impl Run<'_> {
             if now < self.load_end {
                 self.up_bytes += bytes.len() as u64;
             }
-            let put = wiring.session(k).put(&self.input_keys[k], bytes).encoding(self.cfg.encoding.zenoh_tag());
-            if put.wait().is_ok() {
+            if wiring.inputs[k].put(bytes).wait().is_ok() {
                 self.r.inputs_delivered += self.clients[k].delivered(&seqs);
             }
         }
@@ -960,7 +973,6 @@ impl Run<'_> {
         self.up = DelayLine::new(1 << 20);
         self.down = DelayLine::new(1 << 21);
         self.checks.clear();
-        self.input_keys = self.clients.iter().map(|c| keys::INPUT.key(&next, Some(c.id))).collect();
         let rules = scene_rules(cfg, &next, &wiring.sessions[0], &self.clients)?;
         predict(rules.as_ref(), &mut self.clients)?;
         self.walk_mps = walk_speed(rules.as_ref());

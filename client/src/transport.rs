@@ -318,7 +318,9 @@ fn ask_scene(session: &::zenoh::Session, world: &WorldId, tx: SyncSender<Inbound
 pub struct Connection {
     session: ::zenoh::Session,
     world: WorldId,
-    input_key: String,
+    /// The client's input key, declared once: the server resolves it once rather than match the
+    /// key of every message against its subscriptions.
+    input: ::zenoh::pubsub::Publisher<'static>,
     encoding: Encoding,
     inbox: Receiver<Inbound>,
     dropped: Arc<AtomicU64>,
@@ -403,6 +405,11 @@ impl Connection {
         if opts.scene {
             ask_scene(&session, w, tx.clone())?;
         }
+        let input = session
+            .declare_publisher(keys::INPUT.key(w, c))
+            .encoding(opts.encoding.zenoh_tag())
+            .wait()
+            .map_err(|e| TransportError::Zenoh(format!("declaring the input publisher: {e}")))?;
         // Last, so every subscription is in place when the welcome comes.
         let token = session
             .liveliness()
@@ -412,7 +419,7 @@ impl Connection {
         Ok(Connection {
             session,
             world: w.clone(),
-            input_key: keys::INPUT.key(w, c),
+            input,
             encoding: opts.encoding,
             inbox,
             dropped,
@@ -440,11 +447,7 @@ impl Connection {
     /// Sends one message on the client's input key.
     pub fn send(&self, msg: &ClientMessage) -> Result<(), TransportError> {
         let bytes = impact_protocol::encode(msg, self.encoding).map_err(|e| TransportError::Zenoh(e.to_string()))?;
-        self.session
-            .put(&self.input_key, bytes)
-            .encoding(self.encoding.zenoh_tag())
-            .wait()
-            .map_err(|e| TransportError::Zenoh(format!("sending: {e}")))
+        self.input.put(bytes).wait().map_err(|e| TransportError::Zenoh(format!("sending: {e}")))
     }
 
     /// Messages dropped because the inbox was full (the game stopped pumping).
