@@ -143,6 +143,8 @@ def main():
         return w["tick"] + int((time.time() - welcomed_at) * w["tick_hz"])
 
     last = time.time()
+    # Inputs through a declared publisher: the server resolves the key once (PROTOCOL.md).
+    inputs = session.declare_publisher(f"{prefix}/input/{me}")
     # Seqs are nonces: start from the welcome's next_seq (PROTOCOL.md, "Replay protection").
     first_seq = w.get("next_seq", 0)
     for seq in range(first_seq, first_seq + 10):
@@ -158,7 +160,7 @@ def main():
         view = view_tick()
         msg = {"type": "input", "client": me, "seq": seq, "tick": view + round(lead), "view_tick": view,
                "actions": [{"type": "set_velocity", "entity": w["avatar"], "velocity": [2.0, 0.0, 1.0]}]}
-        session.put(f"{prefix}/input/{me}", msgpack.packb(msg), encoding=zenoh.Encoding("application/msgpack"))
+        inputs.put(msgpack.packb(msg), encoding=zenoh.Encoding("application/msgpack"))
         time.sleep(0.1)
 
     done.wait(max(0.0, deadline - time.time()))
