@@ -5,7 +5,7 @@
 //! a steady window (after the players joined), split by thread name, the tick's percentiles and
 //! overruns from its stats, and the tick thread's own CPU from its summary. Each run is a fresh
 //! server; a run whose load generator fell behind (`Report::load_kept_up`) is marked invalid and
-//! left out of the medians.
+//! left out of the medians (a setting with no valid run shows the medians of all its runs, marked).
 
 use super::{endpoint, median, progress, router_proc, server_on, stat_cpu_s};
 use anyhow::{bail, Result};
@@ -312,17 +312,21 @@ fn summary(a: &Players, runs: &[Run]) -> Result<()> {
                 continue;
             }
             let ok: Vec<&Run> = all.iter().copied().filter(|r| r.valid()).collect();
-            let m = |f: &dyn Fn(&Run) -> f64| median(ok.iter().map(|r| f(r)).collect());
+            // With no valid run, the medians of all of them, marked: what the machine did, not
+            // the server's cost alone.
+            let of = if ok.is_empty() { &all } else { &ok };
+            let m = |f: &dyn Fn(&Run) -> f64| median(of.iter().map(|r| f(r)).collect());
             let (cores, per, p99) =
                 (m(&|r| r.cores), m(&|r| r.us_per_player_tick()), m(&|r| r.report.server_tick_ms_p99));
             let overruns = m(&|r| r.report.server_overruns as f64);
             let (ack, down) = (m(&|r| r.report.latency_ms_p99), m(&|r| r.report.bytes_down_per_client_s));
             let tick_cpu = m(&|r| r.tick_cpu.map_or(f64::NAN, |t| t.1));
             println!(
-                "{n:>7} {:>7} {:>3}/{:<2} {cores:>7.3} {per:>9.2} {p99:>9.2} {overruns:>9.0} {ack:>8.1} {down:>9.0} {tick_cpu:>10.2}",
+                "{n:>7} {:>7} {:>3}/{:<2} {cores:>7.3} {per:>9.2} {p99:>9.2} {overruns:>9.0} {ack:>8.1} {down:>9.0} {tick_cpu:>10.2}{}",
                 if s { "on" } else { "off" },
                 ok.len(),
-                all.len()
+                all.len(),
+                if ok.is_empty() { "  (no valid run: medians of all, the load generator's lag in them)" } else { "" }
             );
             println!(
                 "{}",
