@@ -8,8 +8,7 @@ use super::timing::LeadEstimator;
 use crate::rollback::RollbackConfig;
 use impact_core::scene::Scene;
 use impact_protocol::{
-    encode, keys, ClientId, ClientInput, Encoding, EntityId, InputReject, RejectReason, ServerMessage, Tick, TimePing,
-    WorldId,
+    keys, ClientId, ClientInput, Encoding, EntityId, InputReject, RejectReason, ServerMessage, Tick, TimePing, WorldId,
 };
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -210,7 +209,6 @@ struct ClientState {
 struct Shared {
     rejected_in_callbacks: [AtomicU64; RejectReason::ALL.len()],
     egress_dropped: AtomicU64,
-    egress_failed: AtomicU64,
     /// Set by [`ServerHandle::close`]: the clients are told, with where to go next and why.
     closing: std::sync::Mutex<Option<(Option<WorldId>, String)>>,
     /// Closed for good ([`ServerHandle::close`]): inputs are no longer answered.
@@ -221,13 +219,12 @@ fn reason_index(r: RejectReason) -> usize {
     RejectReason::ALL.iter().position(|x| *x == r).unwrap_or(0)
 }
 
-/// Sends a message through the bounded egress queue; a full queue drops it and counts.
-fn send(tx: &SyncSender<Out>, shared: &Shared, key: String, msg: &ServerMessage, encoding: Encoding) {
-    let Ok(bytes) = encode(msg, encoding) else {
-        shared.egress_failed.fetch_add(1, Ordering::Relaxed);
-        return;
-    };
-    if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) = tx.try_send(Out::Put { key, bytes, encoding }) {
+/// Sends a message through the bounded egress queue (the egress thread encodes it); a full queue
+/// drops it and counts.
+fn send(tx: &SyncSender<Out>, shared: &Shared, key: String, msg: ServerMessage, encoding: Encoding) {
+    if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) =
+        tx.try_send(Out::Put { key, msg: Box::new(msg), encoding })
+    {
         shared.egress_dropped.fetch_add(1, Ordering::Relaxed);
     }
 }

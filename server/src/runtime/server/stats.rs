@@ -95,7 +95,7 @@ impl TickLoop {
                 state_skipped: load(&c.skipped),
             });
         }
-        self.put(keys::STATS.key(&self.world, None), &ServerMessage::Stats(stats), self.opts.encoding);
+        self.put(keys::STATS.key(&self.world, None), ServerMessage::Stats(stats), self.opts.encoding);
         self.period_events = 0;
         self.period_rollbacks = 0;
         self.period_depth = 0;

@@ -16,8 +16,8 @@ use crate::runtime::timing::LeadEstimator;
 use impact_core::scene::{avatar_position, AvatarRule, Scene};
 use impact_core::sim::{Plan, SystemAction};
 use impact_protocol::{
-    encode, keys, Admitted, ClientId, CollisionEvent, Encoding, EntityId, EventBatch, InputAck, InputReject,
-    LoggedInput, RejectReason, ServerMessage, Tick, TimePing, TimePong, Welcome, WorldClosed, WorldId,
+    keys, Admitted, ClientId, CollisionEvent, Encoding, EntityId, EventBatch, InputAck, InputReject, LoggedInput,
+    RejectReason, ServerMessage, Tick, TimePing, TimePong, Welcome, WorldClosed, WorldId,
 };
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -126,23 +126,17 @@ impl TickLoop {
         }
     }
 
-    pub(super) fn put(&self, key: String, msg: &ServerMessage, encoding: Encoding) {
+    /// Hands `msg` to the egress thread, which encodes and publishes it.
+    pub(super) fn put(&self, key: String, msg: ServerMessage, encoding: Encoding) {
         send(&self.egress, &self.shared, key, msg, encoding);
     }
 
     /// Publishes on the log streams: in order with everything else, but never dropped by
     /// congestion (a standby that misses an entry must start again from a checkpoint).
-    fn put_log(&self, key: String, msg: &ServerMessage) {
-        let enc = self.opts.encoding;
-        match encode(msg, enc) {
-            Ok(bytes) => {
-                if self.egress.try_send(Out::Log { key, bytes, encoding: enc }).is_err() {
-                    self.shared.egress_dropped.fetch_add(1, Ordering::Relaxed);
-                }
-            }
-            Err(_) => {
-                self.shared.egress_failed.fetch_add(1, Ordering::Relaxed);
-            }
+    fn put_log(&self, key: String, msg: ServerMessage) {
+        let encoding = self.opts.encoding;
+        if self.egress.try_send(Out::Log { key, msg: Box::new(msg), encoding }).is_err() {
+            self.shared.egress_dropped.fetch_add(1, Ordering::Relaxed);
         }
     }
 
@@ -255,7 +249,7 @@ impl TickLoop {
             if self.earlier.confirmed(batch.tick) {
                 continue;
             }
-            self.put(keys::CONFIRMED.key(&self.world, None), &ServerMessage::Confirmed(batch), self.opts.encoding);
+            self.put(keys::CONFIRMED.key(&self.world, None), ServerMessage::Confirmed(batch), self.opts.encoding);
             if self.earlier.logged(log.tick) {
                 continue;
             }
@@ -263,7 +257,7 @@ impl TickLoop {
             if let Some(r) = self.record.as_mut() {
                 r.write(&entry);
             }
-            self.put_log(keys::LOG.key(&self.world, None), &ServerMessage::Log(entry));
+            self.put_log(keys::LOG.key(&self.world, None), ServerMessage::Log(entry));
         }
         // Closed for good: every client is told, after the last events.
         let closing = self.shared.closing.lock().ok().and_then(|mut c| c.take());
@@ -271,7 +265,7 @@ impl TickLoop {
             let tick = self.session.now();
             let notice = ServerMessage::Closed(WorldClosed { world: self.world.clone(), tick, next, reason });
             for c in self.clients.values() {
-                self.put(c.ack_key.clone(), &notice, c.encoding);
+                self.put(c.ack_key.clone(), notice.clone(), c.encoding);
             }
         }
         self.finish()
@@ -448,7 +442,7 @@ impl TickLoop {
                     self.count_reject(RejectReason::QueueFull);
                     let detail = format!("the server already serves its maximum of {} clients", self.opts.max_clients);
                     let msg = reject(client, Some((seq, tick)), RejectReason::QueueFull, detail);
-                    self.put(self.ack_key(client), &msg, encoding);
+                    self.put(self.ack_key(client), msg, encoding);
                     continue;
                 }
                 let state = self.new_client(client, false, Some(now.0 + self.opts.grace_ticks), encoding);
@@ -468,7 +462,7 @@ impl TickLoop {
                     RejectReason::RateLimited,
                     format!("more than {} inputs per second", self.opts.inputs_per_client_per_s),
                 );
-                self.put(ack_key, &msg, encoding);
+                self.put(ack_key, msg, encoding);
                 continue;
             }
             state.tokens = (state.tokens - 1.0).max(0.0);
@@ -522,7 +516,7 @@ impl TickLoop {
                         oldest_tick: r.oldest_tick,
                         newest_tick: r.newest_tick,
                     });
-                    self.put(ack_key, &msg, encoding);
+                    self.put(ack_key, msg, encoding);
                 }
             }
         }
@@ -540,7 +534,7 @@ impl TickLoop {
         state.tokens -= 1.0;
         let pong = ServerMessage::Pong(TimePong { client: ping.client, id: ping.id, server_tick: self.session.now() });
         let key = state.ack_key.clone();
-        self.put(key, &pong, encoding);
+        self.put(key, pong, encoding);
     }
 
     /// Publishes what this tick admitted (a standby re-applies it if this process dies before
@@ -554,10 +548,10 @@ impl TickLoop {
                 &mut self.admitted,
                 Admitted { tick: now, system: Vec::new(), inputs: Vec::new() },
             ));
-            self.put_log(keys::LOG_ADMITTED.key(&self.world, None), &msg);
+            self.put_log(keys::LOG_ADMITTED.key(&self.world, None), msg);
         }
         for (key, ack, encoding) in std::mem::take(&mut self.acks) {
-            self.put(key, &ack, encoding);
+            self.put(key, ack, encoding);
         }
     }
 
@@ -591,7 +585,7 @@ impl TickLoop {
             self.per_client(&batch.events, adv.tick, |events| {
                 ServerMessage::Events(EventBatch { tick: batch.tick, revision: 0, events })
             });
-            self.put(keys::EVENTS.key(&self.world, None), &ServerMessage::Events(batch), enc);
+            self.put(keys::EVENTS.key(&self.world, None), ServerMessage::Events(batch), enc);
         }
         for c in &adv.corrections {
             self.summary.corrections += 1;
@@ -609,7 +603,7 @@ impl TickLoop {
                     added: keep(&cc.added),
                 })
             });
-            self.put(keys::CORRECTIONS.key(&self.world, None), &ServerMessage::Corrections(c.clone()), enc);
+            self.put(keys::CORRECTIONS.key(&self.world, None), ServerMessage::Corrections(c.clone()), enc);
         }
         // A standby that took over re-simulates ticks its primary already logged or confirmed:
         // they were published then, and are not again.
@@ -618,7 +612,7 @@ impl TickLoop {
             if let Some(r) = self.record.as_mut() {
                 r.write(&entry);
             }
-            self.put_log(keys::LOG.key(&self.world, None), &ServerMessage::Log(entry));
+            self.put_log(keys::LOG.key(&self.world, None), ServerMessage::Log(entry));
         }
         if let Some(c) = adv.confirmed.as_ref().filter(|c| !self.earlier.confirmed(c.tick)) {
             self.summary.confirmed_events += c.events.len() as u64;
@@ -628,16 +622,16 @@ impl TickLoop {
                     ServerMessage::Confirmed(EventBatch { tick: cc.tick, revision: cc.revision, events })
                 });
             }
-            self.put(keys::CONFIRMED.key(&self.world, None), &ServerMessage::Confirmed(c.clone()), enc);
+            self.put(keys::CONFIRMED.key(&self.world, None), ServerMessage::Confirmed(c.clone()), enc);
         }
         for r in &adv.rays {
             let e = self.clients.get(&r.client).map_or(enc, |c| c.encoding);
-            self.put(self.ack_key(r.client), &ServerMessage::RayResult(r.clone()), e);
+            self.put(self.ack_key(r.client), ServerMessage::RayResult(r.clone()), e);
         }
         for s in &adv.skipped {
             self.count_reject(s.reason);
             let e = self.clients.get(&s.client).map_or(enc, |c| c.encoding);
-            self.put(self.ack_key(s.client), &reject(s.client, Some((s.seq, s.tick)), s.reason, s.detail.clone()), e);
+            self.put(self.ack_key(s.client), reject(s.client, Some((s.seq, s.tick)), s.reason, s.detail.clone()), e);
         }
         for (client, entity) in &adv.spawned {
             if let Some(c) = self.clients.get_mut(client) {
@@ -663,7 +657,7 @@ impl TickLoop {
             scene_hash: self.scene_hash,
         });
         let e = self.clients.get(&client).map_or(self.opts.encoding, |c| c.encoding);
-        self.put(self.ack_key(client), &msg, e);
+        self.put(self.ack_key(client), msg, e);
     }
 
     pub(super) fn join(&mut self, client: ClientId) {
@@ -726,7 +720,7 @@ impl TickLoop {
         }
         for (client, evs) in by_client {
             let e = self.clients.get(&client).map_or(self.opts.encoding, |c| c.encoding);
-            self.put(self.events_key(client), &make(evs), e);
+            self.put(self.events_key(client), make(evs), e);
         }
     }
 }
