@@ -156,6 +156,35 @@ impl Aabb {
     pub fn extents(&self) -> DVec3 {
         self.max - self.min
     }
+
+    /// Whether the segment from `a` to `b` meets the box (closed, with `slack` m of tolerance
+    /// on every side, so a caller can keep the test conservative against rounding): the slab
+    /// test, exact where a box-box test against the segment's bounds is not (a long diagonal
+    /// segment's bounds cover much that it never comes near).
+    pub fn crosses_segment(&self, a: DVec3, b: DVec3, slack: f64) -> bool {
+        let (min, max) = (self.min - DVec3::splat(slack), self.max + DVec3::splat(slack));
+        let d = b - a;
+        let (mut t0, mut t1) = (0.0f64, 1.0f64);
+        for axis in 0..3 {
+            let (o, v, lo, hi) = (a[axis], d[axis], min[axis], max[axis]);
+            if v == 0.0 {
+                if o < lo || o > hi {
+                    return false;
+                }
+                continue;
+            }
+            let (mut ta, mut tb) = ((lo - o) / v, (hi - o) / v);
+            if ta > tb {
+                std::mem::swap(&mut ta, &mut tb);
+            }
+            t0 = t0.max(ta);
+            t1 = t1.min(tb);
+            if t0 > t1 {
+                return false;
+            }
+        }
+        true
+    }
 }
 
 impl Shape {

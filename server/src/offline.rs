@@ -138,7 +138,7 @@ pub fn run(
                 rewound = list.clone();
                 let oldest = past.front().map_or(tick, |(w, _)| w.tick);
                 let max_rewind = world.config.max_rewind_ticks;
-                crate::rollback::hitscan::rewind_rays(tick, &mut rewound, max_rewind, oldest, &world, |t| {
+                crate::rollback::hitscan::rewind_rays(tick, &mut rewound, max_rewind, oldest, None, &world, |t| {
                     let (w, index) = past.get(t.0.checked_sub(oldest.0)? as usize)?;
                     Some((w, index.get_or_init(|| RayIndex::build(w))))
                 });

@@ -436,6 +436,8 @@ fn a_past_worlds_ray_index_follows_a_change_to_that_world() {
         capped: false,
         resolutions: 0,
         ray_index: Default::default(),
+        paths_index: Default::default(),
+        paths_moved: Vec::new(),
     };
     let ray = Ray { origin: glam::DVec3::ZERO, dir: glam::DVec3::X, max_m: 50.0, exclude: Some(EntityId(0)) };
     let cast = |f: &Frame| {
@@ -450,4 +452,41 @@ fn a_past_worlds_ray_index_follows_a_change_to_that_world() {
     assert_eq!(cast(&frame), None, "moved out of the line");
     frame.state_mut().bodies.pos[target].z -= 10.0;
     assert_eq!(cast(&frame), Some(EntityId(1)), "moved back in: the index files it where it is now");
+}
+
+/// A frame's path boxes, filed in a grid for selective re-simulation, are found where a
+/// re-simulation last left them, not where the grid was built.
+#[test]
+fn a_frames_path_grid_follows_a_change_to_its_paths() {
+    use impact_core::geometry::Aabb;
+    use impact_server::rollback::history::Frame;
+    let (_, s) = range_at(106);
+    let mut frame: Frame = s.frame(Tick(100)).expect("tick 100 is in the history").clone();
+    let unit = |x: f64| Aabb { min: glam::DVec3::new(x, 0.0, 0.0), max: glam::DVec3::new(x + 1.0, 1.0, 1.0) };
+    // Three boxes to look at, and far ones so that one moved box is few enough to keep the grid.
+    let mut paths = vec![unit(0.0), unit(5.0), unit(10.0)];
+    paths.extend((0..40).map(|k| unit(100.0 + 3.0 * f64::from(k))));
+    *frame.paths_mut() = paths;
+    let near = |f: &Frame, x: f64| {
+        let mut out = Vec::new();
+        f.paths_overlapping(&unit(x), &mut out);
+        out.sort_unstable();
+        out
+    };
+    assert_eq!(near(&frame, 5.5), vec![1]);
+    frame.paths_mut()[1] = unit(20.0);
+    assert_eq!(near(&frame, 5.5), Vec::<u32>::new(), "moved away: the grid is built again");
+    assert_eq!(near(&frame, 19.5), vec![1]);
+    // One slot set while the grid stands: found where it is now, not where the grid has it.
+    frame.set_path(2, unit(5.2));
+    assert_eq!(frame.paths_moved, vec![2], "the grid is kept, the slot marked");
+    assert_eq!(near(&frame, 10.5), Vec::<u32>::new(), "moved off: the grid's answer is stale");
+    assert_eq!(near(&frame, 5.5), vec![2]);
+    assert_eq!(near(&frame, 19.5), vec![1], "the others still answer from the grid");
+    // Many moved: the grid is dropped and built again from where they all are.
+    for k in 3..8 {
+        frame.set_path(k, unit(200.0 + f64::from(k as u32)));
+    }
+    assert!(frame.paths_moved.is_empty());
+    assert_eq!(near(&frame, 203.5), vec![3, 4]);
 }

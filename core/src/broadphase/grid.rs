@@ -34,7 +34,7 @@ const CELL_MARGIN: f64 = 1.0 / (1u64 << 20) as f64;
 pub(crate) const DENSE_CELLS_PER_BODY: u64 = 32;
 
 /// Grid state, carried across ticks (the sort order) and reused (the buffers).
-#[derive(Debug, Default)]
+#[derive(Clone, Debug, Default)]
 pub struct Grid {
     /// One over the cell's size: cell coordinates by a multiplication, not three divisions a box.
     inv_cell: f64,

@@ -16,7 +16,6 @@
 pub mod brute;
 pub mod grid;
 pub mod sap;
-pub mod sorted;
 
 use crate::geometry::Aabb;
 use crate::par::Pool;

@@ -437,6 +437,34 @@ impl Bodies {
         t.teleported.push(None);
     }
 
+    /// The bodies at `slots` (ascending), in that order: what [`Bodies::remove_flagged`] leaves
+    /// of the rest, copying only what is kept.
+    pub fn select(&self, slots: &[usize]) -> Bodies {
+        fn pick<T: Clone>(v: &[T], slots: &[usize]) -> Vec<T> {
+            slots.iter().map(|&k| v[k].clone()).collect()
+        }
+        let t = &self.table;
+        Bodies {
+            pos: pick(&self.pos, slots),
+            vel: pick(&self.vel, slots),
+            asleep: pick(&self.asleep, slots),
+            still_ticks: pick(&self.still_ticks, slots),
+            table: Arc::new(BodyTable {
+                id: pick(&t.id, slots),
+                class: pick(&t.class, slots),
+                shape: pick(&t.shape, slots),
+                radius: pick(&t.radius, slots),
+                aabb_lo: pick(&t.aabb_lo, slots),
+                aabb_hi: pick(&t.aabb_hi, slots),
+                rot: pick(&t.rot, slots),
+                inv_mass: pick(&t.inv_mass, slots),
+                owner: pick(&t.owner, slots),
+                game: pick(&t.game, slots),
+                teleported: pick(&t.teleported, slots),
+            }),
+        }
+    }
+
     /// Removes the slots flagged in `dead`, keeping the order of the rest.
     pub fn remove_flagged(&mut self, dead: &[bool]) {
         fn keep<T>(v: &mut Vec<T>, dead: &[bool]) {
@@ -729,6 +757,31 @@ mod tests {
             for a in 0..400 {
                 prop_assert_eq!(b.slot_from(&mut cursor, EntityId(a)), b.slot(EntityId(a)));
             }
+        }
+
+        /// Selecting the kept slots gives what removing the others does, field by field.
+        #[test]
+        fn select_equals_remove_flagged(n in 0u32..40, dead in proptest::collection::vec(any::<bool>(), 40)) {
+            let mut b = Bodies::default();
+            for k in 0..n {
+                b.push(EntityId(2 * k + 1), NewBody {
+                    class: ClassId((k % 3) as u16),
+                    shape: Shape::Sphere { radius: 0.25 + f64::from(k % 4) },
+                    pos: DVec3::new(f64::from(k), 1.0, -f64::from(k)),
+                    vel: DVec3::new(0.5, f64::from(k), 0.0),
+                    rot: DQuat::from_rotation_y(f64::from(k)),
+                    inv_mass: 1.0 / f64::from(k + 1),
+                    owner: (k % 2 == 0).then_some(ClientId(k)),
+                });
+                b.still_ticks[k as usize] = k as u16;
+                b.asleep[k as usize] = k % 5 == 0;
+            }
+            let dead = &dead[..n as usize];
+            let kept: Vec<usize> = (0..n as usize).filter(|&k| !dead[k]).collect();
+            let picked = b.select(&kept);
+            let mut removed = b.clone();
+            removed.remove_flagged(dead);
+            prop_assert_eq!(format!("{picked:?}"), format!("{removed:?}"));
         }
 
         /// Slots from hints equal slots searched for, whatever the hints: right, stale (a body

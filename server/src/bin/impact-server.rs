@@ -78,9 +78,11 @@ struct Args {
     /// Stale inputs: reject them, or clamp them to the oldest tick in the window.
     #[arg(long, default_value = "reject", value_parser = ["reject", "clamp"])]
     stale: String,
-    /// Re-simulate only what a late input can reach (proven equal to a full re-simulation).
-    #[arg(long)]
-    selective: bool,
+    /// How a late input is re-simulated: `selective` re-simulates only the bodies it can reach,
+    /// when that is provably what re-simulating everything gives (else everything); `full`
+    /// always re-simulates every body. Results are the same; only the cost differs.
+    #[arg(long, default_value = "selective", value_parser = ["selective", "full"])]
+    resimulate: String,
     /// Self-check: re-simulate this many past ticks every tick and count desyncs.
     #[arg(long, default_value_t = 0)]
     self_check: u32,
@@ -345,7 +347,7 @@ fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>, pool:
         let (a, users, pool, metrics) = (args.clone(), users.clone(), pool.clone(), metrics.clone());
         move |scene: &Scene| {
             let mut rollback = RollbackConfig::for_world(&scene.world);
-            rollback.selective = a.selective;
+            rollback.selective = a.resimulate == "selective";
             rollback.self_check_ticks = a.self_check;
             rollback.stale = if a.stale == "clamp" { StalePolicy::Clamp } else { StalePolicy::Reject };
             ServerOptions {

@@ -2,6 +2,7 @@
 //! and the events published for it. Its length never exceeds the window, so memory is fixed once
 //! it is full, however long the server runs.
 
+use impact_core::broadphase::grid::Grid;
 use impact_core::sim::ray_index::RayIndex;
 use impact_core::sim::{TickInput, World};
 use impact_protocol::{CollisionEvent, Tick};
@@ -25,8 +26,15 @@ pub struct Frame {
     /// 0 when first published; +1 per correction.
     pub revision: u32,
     /// The box each body's path stayed within during the tick (by slot of `state`), for
-    /// selective re-simulation; empty when not kept.
+    /// selective re-simulation; empty when not kept. Changed through [`Frame::paths_mut`] only,
+    /// which drops the index built from it.
     pub paths: Vec<impact_core::geometry::Aabb>,
+    /// `paths` filed in a grid for overlap queries, built when a selective re-simulation first
+    /// asks.
+    pub paths_index: OnceLock<Grid>,
+    /// Slots (ascending) whose path box changed since `paths_index` was built: the grid's
+    /// answers for them are stale, so they are tested directly.
+    pub paths_moved: Vec<u32>,
     /// The tick hit the per-tick resolution cap (its outcome depends on every body: selective
     /// re-simulation is not allowed through it).
     pub capped: bool,
@@ -46,6 +54,50 @@ impl Frame {
     /// The index rewound shots at this tick are cast through.
     pub fn ray_index(&self) -> &RayIndex {
         self.ray_index.get_or_init(|| RayIndex::build(&self.state))
+    }
+
+    /// `paths` to change: the index built from them is dropped.
+    pub fn paths_mut(&mut self) -> &mut Vec<impact_core::geometry::Aabb> {
+        self.paths_index = OnceLock::new();
+        self.paths_moved.clear();
+        &mut self.paths
+    }
+
+    /// Sets one slot's path box. The grid is kept (the slot is tested directly from now on)
+    /// until a sixteenth of the slots have moved; then it is dropped, to be built again.
+    pub fn set_path(&mut self, slot: usize, b: impact_core::geometry::Aabb) {
+        if self.paths_index.get().is_some() {
+            if let Err(at) = self.paths_moved.binary_search(&(slot as u32)) {
+                self.paths_moved.insert(at, slot as u32);
+            }
+            if self.paths_moved.len() * 16 > self.paths.len() {
+                self.paths_mut();
+            }
+        }
+        self.paths[slot] = b;
+    }
+
+    /// Appends the slot of every body whose path box overlaps `q` (through a grid of `paths`,
+    /// built once per change).
+    pub fn paths_overlapping(&self, q: &impact_core::geometry::Aabb, out: &mut Vec<u32>) {
+        let grid = self.paths_index.get_or_init(|| {
+            let mut g = Grid::default();
+            g.index(&self.paths);
+            g
+        });
+        let first = out.len();
+        grid.query(&self.paths, q, out);
+        if !self.paths_moved.is_empty() {
+            let mut k = first;
+            for j in first..out.len() {
+                if self.paths_moved.binary_search(&out[j]).is_err() {
+                    out[k] = out[j];
+                    k += 1;
+                }
+            }
+            out.truncate(k);
+            out.extend(self.paths_moved.iter().copied().filter(|&m| self.paths[m as usize].overlaps(q)));
+        }
     }
 }
 

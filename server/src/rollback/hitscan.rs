@@ -15,10 +15,71 @@ use impact_core::sim::ray_index::{self, RayIndex};
 use impact_core::sim::World;
 use impact_protocol::{Action, Tick};
 
+/// A hitscan ray of an input, to be cast against the world of its view tick.
+#[derive(Clone, Copy, Debug)]
+pub struct Shot {
+    /// The tick whose world (at its start) it is tested against.
+    pub view: Tick,
+    /// The requested view tick was further back than allowed.
+    pub clamped: bool,
+    /// The input (index among the tick's inputs) and its `FireRay` action.
+    pub input: usize,
+    /// The action's index in the input.
+    pub action: u32,
+    /// The ray.
+    pub ray: Ray,
+}
+
+/// The rewound rays of `tick`'s inputs: each input whose view tick is in the past, its hitscan
+/// rays with the view tick they are tested at. A shot keeps the view tick it was first cast at
+/// (its `rewound` entries say which); a shot cast for the first time looks at its view tick, or,
+/// further back than `max_rewind_ticks` before `tick` or than `oldest` (the oldest world held),
+/// at the nearest allowed one, marked clamped. Sorted by view tick, then input, then action.
+/// Inputs from the log are skipped (their hits are used as logged).
+pub fn shots(tick: Tick, inputs: &[TickInput], max_rewind_ticks: u32, oldest: Tick) -> Vec<Shot> {
+    let mut shots = Vec::new();
+    for (n, input) in inputs.iter().enumerate() {
+        if input.logged {
+            continue;
+        }
+        let Some(requested) = input.view_tick else { continue };
+        if requested >= tick {
+            continue;
+        }
+        let (view, clamped) = match input.rewound.first() {
+            Some(r) => (r.view_tick, r.clamped),
+            None => {
+                let floor = Tick(tick.0.saturating_sub(max_rewind_ticks).max(oldest.0).min(tick.0));
+                if requested < floor {
+                    (floor, true)
+                } else {
+                    (requested, false)
+                }
+            }
+        };
+        for (k, a) in input.actions.iter().enumerate() {
+            if let Action::FireRay { shooter, origin, direction, max_distance_m } = a {
+                let ray = Ray {
+                    origin: DVec3::from_array(*origin),
+                    dir: DVec3::from_array(*direction).normalize(),
+                    max_m: *max_distance_m,
+                    exclude: Some(*shooter),
+                };
+                shots.push(Shot { view, clamped, input: n, action: k as u32, ray });
+            }
+        }
+    }
+    shots.sort_by_key(|s| (s.view, s.input, s.action));
+    shots
+}
+
 /// Fills `rewound` for each input of `tick` whose view tick is in the past: its hitscan rays
-/// tested against the world at the start of the view tick. A view tick further back than
-/// `max_rewind_ticks` before `tick`, or than `oldest` (the oldest world `past` holds), is
-/// clamped to the nearest allowed one and marked. `present` is the world at the start of `tick`.
+/// ([`shots`]) tested against the world at the start of the view tick. `present` is the world at
+/// the start of `tick`. A re-simulation from tick `from` passes `unchanged_through: Some(from)`:
+/// the worlds up to the start of `from` are as they were, so a shot cast before at one of them
+/// keeps its hit; one looking later is cast again at the same view tick, against the world the
+/// re-simulation left there. A shot's view tick never moves once cast, so its hit does not
+/// depend on when, or whether, its tick is re-simulated.
 ///
 /// The rays that look at the same past tick are cast together through that world's index
 /// (`past` gives it, built once per past world: [`ray_index::cast_many_indexed`]), so a shot
@@ -28,44 +89,22 @@ pub fn rewind_rays<'a>(
     inputs: &mut [TickInput],
     max_rewind_ticks: u32,
     oldest: Tick,
+    unchanged_through: Option<Tick>,
     present: &'a World,
     past: impl Fn(Tick) -> Option<(&'a World, &'a RayIndex)>,
 ) {
-    // (view tick, clamped, input, action, ray), grouped by view tick below.
-    let mut shots: Vec<(Tick, bool, usize, u32, Ray)> = Vec::new();
-    for (n, input) in inputs.iter_mut().enumerate() {
-        if input.logged {
-            continue;
-        }
+    let kept = |i: &TickInput| i.rewound.first().is_some_and(|r| unchanged_through.is_some_and(|u| r.view_tick <= u));
+    let mut shots = shots(tick, inputs, max_rewind_ticks, oldest);
+    shots.retain(|s| !kept(&inputs[s.input]));
+    for input in inputs.iter_mut().filter(|i| !i.logged && !kept(i)) {
         input.rewound.clear();
-        let Some(requested) = input.view_tick else { continue };
-        if requested >= tick {
-            continue;
-        }
-        let floor = Tick(tick.0.saturating_sub(max_rewind_ticks).max(oldest.0).min(tick.0));
-        let (view, clamped) = if requested < floor { (floor, true) } else { (requested, false) };
-        for (k, a) in input.actions.iter().enumerate() {
-            if let Action::FireRay { shooter, origin, direction, max_distance_m } = a {
-                let ray = Ray {
-                    origin: DVec3::from_array(*origin),
-                    dir: DVec3::from_array(*direction).normalize(),
-                    max_m: *max_distance_m,
-                    exclude: Some(*shooter),
-                };
-                shots.push((view, clamped, n, k as u32, ray));
-            }
-        }
     }
-    if shots.is_empty() {
-        return;
-    }
-    shots.sort_by_key(|s| (s.0, s.2, s.3));
     let mut rays = Vec::new();
     let mut hits = Vec::new();
-    for group in shots.chunk_by(|a, b| a.0 == b.0) {
-        let view = group[0].0;
+    for group in shots.chunk_by(|a, b| a.view == b.view) {
+        let view = group[0].view;
         rays.clear();
-        rays.extend(group.iter().map(|s| s.4));
+        rays.extend(group.iter().map(|s| s.ray));
         if view == tick {
             ray::cast_many(present, &rays, &mut hits);
         } else if let Some((world, index)) = past(view) {
@@ -74,7 +113,7 @@ pub fn rewind_rays<'a>(
             continue;
         }
         for (s, hit) in group.iter().zip(hits.drain(..)) {
-            inputs[s.2].rewound.push(RewoundRay { action: s.3, view_tick: view, clamped: s.1, hit });
+            inputs[s.input].rewound.push(RewoundRay { action: s.action, view_tick: view, clamped: s.clamped, hit });
         }
     }
 }

@@ -49,7 +49,8 @@ pub struct RollbackConfig {
     pub stale: StalePolicy,
     /// Self-check: re-simulate this many past ticks every tick and count desyncs (0: off).
     pub self_check_ticks: u32,
-    /// Re-simulate only the bodies a late input can reach, when that is provably equal.
+    /// Re-simulate only the bodies a late input can reach, when that is provably equal (the
+    /// default; off: every rollback re-simulates every body).
     pub selective: bool,
     /// Most inputs held for one tick (a bound on memory whatever clients send).
     pub max_inputs_per_tick: usize,
@@ -66,7 +67,7 @@ impl RollbackConfig {
             lead_ticks: w.config.input_lead_ticks,
             stale: StalePolicy::Reject,
             self_check_ticks: 0,
-            selective: false,
+            selective: true,
             max_inputs_per_tick: 4096,
             logic_clients: BTreeSet::new(),
         }
@@ -452,6 +453,7 @@ impl Session {
             &mut inputs,
             self.world.config.max_rewind_ticks,
             history.oldest().unwrap_or(tick),
+            None,
             &self.world,
             |t| history.get(t).map(|f| (&f.state, f.ray_index())),
         );
@@ -483,6 +485,8 @@ impl Session {
             capped,
             resolutions,
             ray_index: Default::default(),
+            paths_index: Default::default(),
+            paths_moved: Vec::new(),
         };
         if let Some(old) = self.history.push(frame) {
             // The state after the confirmed tick is the start of the oldest tick still held.
@@ -516,12 +520,13 @@ impl Session {
         let mut w = self.history.get(from).expect("rollback start is in the history").state.clone();
         for k in from.0..now.0 {
             let tick = Tick(k);
-            // Rays rewound to a view tick see that tick as this re-simulation left it.
+            // Rays rewound to a view tick see that tick as this re-simulation left it (those
+            // looking before `from` see what they saw).
             let mut inputs = std::mem::take(&mut self.history.get_mut(tick).expect("held").inputs);
             let history = &self.history;
             let oldest = history.oldest().unwrap_or(tick);
             let max_rewind = w.config.max_rewind_ticks;
-            hitscan::rewind_rays(tick, &mut inputs, max_rewind, oldest, &w, |t| {
+            hitscan::rewind_rays(tick, &mut inputs, max_rewind, oldest, Some(from), &w, |t| {
                 history.get(t).map(|f| (&f.state, f.ray_index()))
             });
             self.history.get_mut(tick).expect("held").inputs = inputs;
@@ -536,8 +541,9 @@ impl Session {
             frame.capped = capped;
             frame.resolutions = resolutions;
             if selective {
-                frame.paths.clear();
-                frame.paths.extend_from_slice(self.stepper.last_paths());
+                let paths = frame.paths_mut();
+                paths.clear();
+                paths.extend_from_slice(self.stepper.last_paths());
             }
             let events = std::mem::take(&mut self.out.events);
             self.take_rays(adv);

@@ -68,7 +68,7 @@ pub fn run(a: &HitscanArgs) -> Result<()> {
         for k in 0..a.shots {
             let mut one = vec![input(k)];
             let t = Instant::now();
-            rewind_rays(now, &mut one, u32::MAX, oldest, s.world(), past);
+            rewind_rays(now, &mut one, u32::MAX, oldest, None, s.world(), past);
             shots.push(t.elapsed());
             hits += u32::from(one[0].rewound.first().is_some_and(|r| r.hit.is_some()));
         }
@@ -77,7 +77,7 @@ pub fn run(a: &HitscanArgs) -> Result<()> {
         for b in 0..(a.shots / a.batch.max(1)).max(5) {
             let mut many: Vec<TickInput> = (0..a.batch).map(|k| input(b * a.batch + k)).collect();
             let t = Instant::now();
-            rewind_rays(now, &mut many, u32::MAX, oldest, s.world(), past);
+            rewind_rays(now, &mut many, u32::MAX, oldest, None, s.world(), past);
             batches.push(t.elapsed());
         }
         let batch_ms = median_ms(&mut batches);

@@ -40,6 +40,9 @@ pub struct Summary {
     pub egress_dropped: u64,
     /// Rollbacks and the deepest.
     pub rollbacks: u64,
+    /// Rollbacks done selectively (`--resimulate selective`): only what the late inputs could
+    /// reach.
+    pub selective_rollbacks: u64,
     /// Deepest rollback, ticks.
     pub rollback_depth_max: u32,
     /// Median rollback depth, ticks (over the ticks that rolled back).
@@ -136,6 +139,9 @@ impl std::fmt::Display for Summary {
             self.rollback_depth_p99,
             self.rollback_depth_max
         )?;
+        if self.selective_rollbacks > 0 {
+            writeln!(f, "selective rollbacks {} of {}", self.selective_rollbacks, self.rollbacks)?;
+        }
         if self.core_steps > 0 {
             let stages: Vec<String> = self.core_stage_ms.iter().map(|(n, ms)| format!("{n} {ms:.3}")).collect();
             let total: f64 = self.core_stage_ms.iter().map(|(_, ms)| ms).sum();

@@ -319,6 +319,7 @@ impl TickLoop {
             }
         }
         self.summary.rollbacks = self.session.stats.rollbacks;
+        self.summary.selective_rollbacks = self.session.stats.selective_rollbacks;
         self.summary.rollback_depth_max = self.session.stats.depth_max;
         let core = &self.session.stepper().stats;
         self.summary.core_steps = core.ticks;
