@@ -363,7 +363,7 @@ fn patch(w: &mut World, sub: &World, reach: &BTreeSet<EntityId>) {
 pub fn resimulate(s: &mut Session, from: Tick, adv: &mut Advance) -> bool {
     let now = s.world.tick;
     let Some(mut touches) = touches(s, from, now) else { return false };
-    let limit = (s.world.bodies.len() / 4).max(8);
+    let limit = (s.world.bodies.len() / 8).max(8);
     let mut reach = Reach { set: BTreeSet::new(), todo: Vec::new() };
     for (n, k) in (from.0..now.0).enumerate() {
         let f = s.history.get(Tick(k)).expect("held");
