@@ -48,6 +48,9 @@ pub struct Report {
     pub unmatched_answers: u64,
     /// Server messages the clients could not decode.
     pub malformed: u64,
+    /// Server messages of an older owner than one the client had heard (a primary that resumed
+    /// after its standby took over), dropped.
+    pub stale_owner: u64,
     /// Times the server process was stalled (SIGSTOP) by the fault injection.
     pub server_stalls: u64,
     /// Input to ack latency, ms: median (round trip through the simulated network and the tick).
@@ -271,6 +274,13 @@ impl std::fmt::Display for Report {
             "  inputs   sent {} ({} copies again) | lost in the network {} ({} messages) | delivered {} ({} twice) | acked {} ({} acks lost, told by the next) | unanswered {} | answered unexpectedly {}",
             self.inputs_sent, self.input_copies_sent, self.inputs_lost_in_network, self.messages_lost_in_network, self.inputs_delivered, self.inputs_duplicated, self.acks, self.acks_recovered, self.inputs_unanswered, self.answers_unexpected
         )?;
+        if self.stale_owner > 0 {
+            writeln!(
+                f,
+                "  owners   {} messages of an older owner dropped (a primary that resumed after a failover)",
+                self.stale_owner
+            )?;
+        }
         if self.worlds_followed > 0 {
             writeln!(
                 f,

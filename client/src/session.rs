@@ -34,7 +34,7 @@ use crate::remote::{DrawnBody, RemoteConfig, RemoteWorld};
 use impact_core::scene::SceneRules;
 use impact_protocol::limits::{MAX_ACTIONS_PER_INPUT, MAX_INPUTS_PER_MESSAGE};
 use impact_protocol::{
-    Action, ClientId, ClientInput, ClientMessage, CollisionEvent, CorrectionBatch, EntityId, FullFrameRequest,
+    Action, ClientId, ClientInput, ClientMessage, CollisionEvent, CorrectionBatch, EntityId, Epoch, FullFrameRequest,
     InputBatch, RayResult, RejectReason, SceneDescription, ServerMessage, Tick, TimePing, Welcome, WorldClosed,
 };
 use std::collections::{BTreeMap, VecDeque};
@@ -239,6 +239,9 @@ pub struct SessionStats {
     pub clock_resyncs: u64,
     /// Messages the transport could not decode (it says so with [`Session::malformed`]).
     pub malformed: u64,
+    /// Messages from an older owner of the world than one already heard (a primary that came
+    /// back after a standby took over): dropped ([`Session::receive_from`]).
+    pub stale_owner: u64,
     /// Messages for another client, or of a kind a client does not use: skipped.
     pub skipped: u64,
     /// Full state frames asked for after a gap.
@@ -330,6 +333,8 @@ pub struct Session {
     closed: Option<WorldClosed>,
     /// When the last message from the server arrived.
     heard: Option<Instant>,
+    /// The newest owner epoch heard (see [`Session::receive_from`]).
+    epoch: Epoch,
 }
 
 impl Session {
@@ -363,6 +368,7 @@ impl Session {
             full_asked: None,
             closed: None,
             heard: None,
+            epoch: Epoch::default(),
         }
     }
 
@@ -645,7 +651,29 @@ impl Session {
         self.stats.malformed += 1;
     }
 
-    /// A message from the server arrived at `now`.
+    /// A message from the world's owner at `epoch` (the sample's attachment,
+    /// [`Epoch::from_attachment`]) arrived at `now`. One from an older owner than the newest
+    /// heard is dropped and counted ([`SessionStats::stale_owner`]): after a failover, the
+    /// primary that stood still may publish for a moment before it hears it was replaced.
+    /// `None` (a message with no epoch) is taken as [`Session::receive`] takes it.
+    pub fn receive_from(&mut self, epoch: Option<Epoch>, msg: ServerMessage, now: Instant) {
+        if let Some(e) = epoch {
+            if e < self.epoch {
+                self.stats.stale_owner += 1;
+                return;
+            }
+            self.epoch = e;
+        }
+        self.receive(msg, now);
+    }
+
+    /// The newest owner epoch heard (0 before any).
+    pub fn epoch(&self) -> Epoch {
+        self.epoch
+    }
+
+    /// A message from the server arrived at `now` (with no owner epoch: see
+    /// [`Session::receive_from`]).
     pub fn receive(&mut self, msg: ServerMessage, now: Instant) {
         let me = self.cfg.client;
         self.heard = Some(self.heard.map_or(now, |h| h.max(now)));
@@ -918,6 +946,29 @@ mod tests {
             lead_ticks: lead,
             accepted_before: 0,
         })
+    }
+
+    /// After a failover the new owner's messages carry a newer epoch; what the old primary still
+    /// sends (an older one) is dropped and counted, and a message with no epoch is taken.
+    #[test]
+    fn an_older_owner_is_not_heard_once_a_newer_one_was() {
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig::new(ClientId(7)));
+        s.receive_from(Some(Epoch(1)), welcome(0), t0);
+        assert_eq!(s.epoch(), Epoch(1));
+        // Acks of no input sent: each is counted as unmatched when it is taken.
+        s.receive_from(Some(Epoch(1)), ack(40, 101, 2), t0);
+        assert_eq!(s.stats().unmatched_answers, 1);
+        // The standby took over: its welcome, at epoch 2.
+        s.receive_from(Some(Epoch(2)), welcome(0), t0);
+        assert_eq!((s.epoch(), s.stats().welcomes), (Epoch(2), 2));
+        // The old primary resumed for a moment: nothing of it is taken.
+        s.receive_from(Some(Epoch(1)), ack(41, 102, 2), t0);
+        s.receive_from(Some(Epoch(1)), welcome(9), t0);
+        assert_eq!((s.stats().unmatched_answers, s.stats().welcomes, s.stats().stale_owner), (1, 2, 2));
+        s.receive_from(Some(Epoch(2)), ack(42, 103, 2), t0);
+        s.receive_from(None, ack(43, 104, 2), t0);
+        assert_eq!((s.stats().unmatched_answers, s.epoch()), (3, Epoch(2)));
     }
 
     /// Joins, probes one at a time, and plays once five answers came: the first lead is the

@@ -21,7 +21,7 @@ use crate::session::Session;
 use ::zenoh::Wait;
 use impact_protocol::limits::MAX_SERVER_MESSAGE_BYTES;
 use impact_protocol::{
-    encode, keys, ClientId, ClientMessage, Encoding, SceneDescription, ServerMessage, WorldAnswer, WorldCommand,
+    encode, keys, ClientId, ClientMessage, Encoding, Epoch, SceneDescription, ServerMessage, WorldAnswer, WorldCommand,
     WorldId,
 };
 use std::path::PathBuf;
@@ -154,6 +154,11 @@ pub fn decode_server(sample: &::zenoh::sample::Sample) -> Result<ServerMessage, 
     impact_protocol::decode(&sample.payload().to_bytes(), enc, MAX_SERVER_MESSAGE_BYTES)
 }
 
+/// The owner epoch a sample carries as its attachment (PROTOCOL.md, "Failover"), if any.
+pub fn epoch_of(sample: &::zenoh::sample::Sample) -> Option<Epoch> {
+    sample.attachment().and_then(|a| Epoch::from_attachment(&a.to_bytes()))
+}
+
 /// Where and how to connect.
 #[derive(Clone, Debug)]
 pub struct ConnectOptions {
@@ -203,8 +208,10 @@ impl ConnectOptions {
 /// What the callbacks queue: a message, one that did not decode, or why the scene query got no
 /// scene.
 #[derive(Debug)]
+// Nearly every item is a message: boxing it would cost an allocation each for the rare others.
+#[allow(clippy::large_enum_variant)]
 enum Inbound {
-    Msg(ServerMessage, Instant),
+    Msg(ServerMessage, Option<Epoch>, Instant),
     Malformed,
     NoScene(String),
 }
@@ -213,7 +220,7 @@ enum Inbound {
 fn scene_reply(reply: &::zenoh::query::Reply) -> Inbound {
     match reply.result() {
         Ok(sample) => match decode_server(sample) {
-            Ok(m @ ServerMessage::Scene(_)) => Inbound::Msg(m, Instant::now()),
+            Ok(m @ ServerMessage::Scene(_)) => Inbound::Msg(m, epoch_of(sample), Instant::now()),
             Ok(ServerMessage::QueryError(e)) => Inbound::NoScene(e.detail),
             Ok(_) | Err(_) => Inbound::Malformed,
         },
@@ -238,7 +245,7 @@ pub fn query_scene(
     let why = match replies.recv() {
         Err(_) => format!("no server answered {key} within {:.1} s", timeout.as_secs_f64()),
         Ok(reply) => match scene_reply(&reply) {
-            Inbound::Msg(ServerMessage::Scene(d), _) => return Ok(*d),
+            Inbound::Msg(ServerMessage::Scene(d), _, _) => return Ok(*d),
             Inbound::NoScene(why) => why,
             _ => format!("{key} answered something that is not a scene"),
         },
@@ -391,7 +398,7 @@ impl Connection {
                 .declare_subscriber(key)
                 .callback(move |sample| {
                     let item = match decode_server(&sample) {
-                        Ok(m) => Inbound::Msg(m, Instant::now()),
+                        Ok(m) => Inbound::Msg(m, epoch_of(&sample), Instant::now()),
                         Err(_) => Inbound::Malformed,
                     };
                     if let Err(TrySendError::Full(_)) = tx.try_send(item) {
@@ -433,7 +440,7 @@ impl Connection {
     pub fn pump(&self, client: &mut Session, now: Instant) -> Result<(), TransportError> {
         while let Ok(item) = self.inbox.try_recv() {
             match item {
-                Inbound::Msg(m, at) => client.receive(m, at),
+                Inbound::Msg(m, epoch, at) => client.receive_from(epoch, m, at),
                 Inbound::Malformed => client.malformed(),
                 Inbound::NoScene(why) => client.scene_unavailable(why),
             }

@@ -55,7 +55,20 @@ def main():
     sent_with_lead = set()  # seqs stamped with a recommended lead
     done = threading.Event()
 
+    owner = {"epoch": 0, "stale": 0}
+
     def decode(sample):
+        # After a failover the old primary may publish for a moment: every message carries its
+        # owner's epoch as the attachment (8 bytes, little-endian u64); drop an older one than
+        # any heard (PROTOCOL.md, "Failover").
+        if sample.attachment is not None:
+            a = sample.attachment.to_bytes()
+            if len(a) == 8:
+                epoch = int.from_bytes(a, "little")
+                if epoch < owner["epoch"]:
+                    owner["stale"] += 1
+                    return None
+                owner["epoch"] = epoch
         # Every sample is tagged with its encoding: MessagePack by default, JSON on request.
         raw = sample.payload.to_bytes()
         if str(sample.encoding).startswith("application/json"):
@@ -64,6 +77,8 @@ def main():
 
     def on_ack(sample):
         msg = decode(sample)
+        if msg is None:
+            return
         if msg["type"] == "welcome":
             state["welcome"] = msg
             print(f"welcome: avatar {msg['avatar']} at tick {msg['tick']} ({msg['tick_hz']} Hz)")
@@ -82,6 +97,8 @@ def main():
 
     def on_events(sample):
         msg = decode(sample)
+        if msg is None:
+            return
         state["batches"] += 1
         state["events"] += len(msg["events"])
         if state["batches"] <= 3:
@@ -98,6 +115,8 @@ def main():
 
     def on_state(sample):
         f = decode(sample)
+        if f is None:
+            return
         stream["frames"] += 1
         if f["full"]:
             stream["bodies"].clear()

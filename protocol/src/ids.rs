@@ -24,6 +24,43 @@ impl fmt::Display for Tick {
     }
 }
 
+/// Which ownership of a world a message comes from: a fencing token. A world's first server owns
+/// it at epoch 1; a standby that takes over owns it at one more than the newest epoch it has
+/// seen. Every message a server publishes or replies carries its epoch as the Zenoh attachment
+/// (the 8 bytes of a `u64`, little-endian: [`Epoch::attachment`]), so a server that finds a newer
+/// one stops publishing, and a client drops what an older owner still sends (PROTOCOL.md,
+/// "Failover").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct Epoch(pub u64);
+
+impl Epoch {
+    /// A world's first owner's.
+    pub const FIRST: Epoch = Epoch(1);
+
+    /// The epoch after this one (a takeover's).
+    #[must_use]
+    pub fn next(self) -> Epoch {
+        Epoch(self.0.saturating_add(1))
+    }
+
+    /// As a Zenoh attachment: 8 bytes, little-endian.
+    pub fn attachment(self) -> [u8; 8] {
+        self.0.to_le_bytes()
+    }
+
+    /// Reads an attachment written by [`Epoch::attachment`] (`None` for any other length).
+    pub fn from_attachment(bytes: &[u8]) -> Option<Epoch> {
+        <[u8; 8]>::try_from(bytes).ok().map(|b| Epoch(u64::from_le_bytes(b)))
+    }
+}
+
+impl fmt::Display for Epoch {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.0)
+    }
+}
+
 /// A client, unique within a world. Chosen by the client and carried in its key expressions.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 #[serde(transparent)]

@@ -54,6 +54,9 @@ pub const LOG: KeyPattern = KeyPattern { name: "log", pattern: "impact/v1/{world
 pub const LOG_ADMITTED: KeyPattern = KeyPattern { name: "log_admitted", pattern: "impact/v1/{world}/log/admitted" };
 /// Liveliness token of the server that owns the world (a standby takes over when it goes).
 pub const SERVER: KeyPattern = KeyPattern { name: "server", pattern: "impact/v1/{world}/server" };
+/// The world's owner says who it is ([`OwnerNotice`](crate::OwnerNotice)), four times a second:
+/// a server that hears a newer epoch than its own stops publishing for the world.
+pub const OWNER: KeyPattern = KeyPattern { name: "owner", pattern: "impact/v1/{world}/owner" };
 /// Queryable: the complete confirmed state ([`Checkpoint`](crate::Checkpoint)), for a standby.
 pub const QUERY_CHECKPOINT: KeyPattern =
     KeyPattern { name: "query_checkpoint", pattern: "impact/v1/{world}/query/checkpoint" };
@@ -65,7 +68,7 @@ pub const CLIENT_STATE: KeyPattern =
     KeyPattern { name: "client_state", pattern: "impact/v1/{world}/client/{client}/state" };
 
 /// Every key impact uses.
-pub const PATTERNS: [KeyPattern; 18] = [
+pub const PATTERNS: [KeyPattern; 19] = [
     INPUT,
     EVENTS,
     CORRECTIONS,
@@ -80,6 +83,7 @@ pub const PATTERNS: [KeyPattern; 18] = [
     LOG,
     LOG_ADMITTED,
     SERVER,
+    OWNER,
     QUERY_CHECKPOINT,
     STATE,
     CLIENT_STATE,

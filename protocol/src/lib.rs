@@ -36,12 +36,13 @@ pub mod validate;
 pub use codec::{decode, decode_unchecked, encode, input_header, Encoding};
 pub use error::ProtocolError;
 pub use event::{CollisionEvent, EventKey, EventStatus, Phase, Response};
-pub use ids::{ClientId, EntityId, Tick, WorldId};
+pub use ids::{ClientId, EntityId, Epoch, Tick, WorldId};
 pub use log::{Admitted, Checkpoint, LogTick, LoggedInput, LoggedSystem};
 pub use message::{
     Action, BodyState, ClientInput, ClientMessage, CorrectionBatch, EventBatch, EventHistory, FullFrameRequest,
-    InputAck, InputBatch, InputReject, QueryError, RayHit, RayResult, RejectReason, ServerMessage, ServerStats,
-    ShapeSpec, TimePing, TimePong, Welcome, WorldAnswer, WorldClosed, WorldCommand, WorldOutcome, WorldSnapshot,
+    InputAck, InputBatch, InputReject, OwnerNotice, QueryError, RayHit, RayResult, RejectReason, ServerMessage,
+    ServerStats, ShapeSpec, TimePing, TimePong, Welcome, WorldAnswer, WorldClosed, WorldCommand, WorldOutcome,
+    WorldSnapshot,
 };
 pub use scene::SceneDescription;
 pub use state::{AvatarState, AvatarTouch, BodyInfo, BodyMotion, BodyShape, GameState, StateFrame};

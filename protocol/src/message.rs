@@ -170,6 +170,8 @@ pub enum ServerMessage {
     /// The world closed (game logic ended the match, or the server stopped): sent to each client
     /// in it on its `ack` key, after the world's last events.
     Closed(WorldClosed),
+    /// The world's owner and its epoch (`owner`, four times a second; for servers).
+    Owner(OwnerNotice),
 }
 
 /// See [`ServerMessage::World`].
@@ -206,6 +208,15 @@ pub enum WorldOutcome {
         /// Details.
         detail: String,
     },
+}
+
+/// See [`ServerMessage::Owner`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct OwnerNotice {
+    /// The owner's epoch (also its attachment).
+    pub epoch: crate::ids::Epoch,
+    /// The tick it is at.
+    pub tick: Tick,
 }
 
 /// See [`ServerMessage::Closed`].

@@ -306,6 +306,7 @@ impl Validate for ServerMessage {
                 Ok(())
             }
             ServerMessage::Closed(c) => reason(&c.reason),
+            ServerMessage::Owner(_) => Ok(()),
             ServerMessage::World(a) => match &a.outcome {
                 WorldOutcome::Refused { detail, .. } => count(detail.len(), 4096, "detail"),
                 _ => Ok(()),

@@ -8,16 +8,26 @@ mod common;
 use common::process::{server_binary, Proc};
 use common::{free_port, join};
 use impact_client_sim::net::{self, Mode};
-use impact_protocol::{encode, keys, ClientId, ClientInput, ClientMessage, Encoding, ServerMessage, Tick, WorldId};
+use impact_protocol::{
+    encode, keys, ClientId, ClientInput, ClientMessage, Encoding, Epoch, ServerMessage, Tick, WorldId,
+};
 use std::collections::{BTreeMap, BTreeSet};
 use std::process::Command;
 use std::sync::mpsc::{sync_channel, Receiver};
 use std::time::{Duration, Instant};
 use zenoh::Wait;
 
+/// A message as a tap received it: its key, the owner epoch it carried, when it came.
+struct Tapped {
+    key: String,
+    msg: ServerMessage,
+    epoch: Option<Epoch>,
+    at: Instant,
+}
+
 /// Messages with the key they came on.
 struct Tap {
-    rx: Receiver<(String, ServerMessage, Instant)>,
+    rx: Receiver<Tapped>,
     _sub: zenoh::pubsub::Subscriber<()>,
 }
 
@@ -27,8 +37,10 @@ impl Tap {
         let sub = s
             .declare_subscriber(key.to_string())
             .callback(move |sample| {
-                if let Ok(m) = net::decode_server(&sample) {
-                    let _ = tx.try_send((sample.key_expr().as_str().to_string(), m, Instant::now()));
+                if let Ok(msg) = net::decode_server(&sample) {
+                    let key = sample.key_expr().as_str().to_string();
+                    let epoch = impact_client::transport::epoch_of(&sample);
+                    let _ = tx.try_send(Tapped { key, msg, epoch, at: Instant::now() });
                 }
             })
             .wait()
@@ -38,6 +50,11 @@ impl Tap {
 
     /// Everything received so far.
     fn drain(&self) -> Vec<(String, ServerMessage, Instant)> {
+        self.rx.try_iter().map(|t| (t.key, t.msg, t.at)).collect()
+    }
+
+    /// Everything received so far, with the epochs.
+    fn drain_tapped(&self) -> Vec<Tapped> {
         self.rx.try_iter().collect()
     }
 
@@ -49,8 +66,8 @@ impl Tap {
     ) -> Option<T> {
         let end = Instant::now() + timeout;
         while let Some(left) = end.checked_duration_since(Instant::now()) {
-            let (k, m, at) = self.rx.recv_timeout(left).ok()?;
-            if let Some(t) = f(&k, &m, at) {
+            let t = self.rx.recv_timeout(left).ok()?;
+            if let Some(t) = f(&t.key, &t.msg, t.at) {
                 return Some(t);
             }
         }
@@ -381,6 +398,178 @@ fn a_standby_takes_over_from_a_killed_primary() {
     let text = String::from_utf8_lossy(&replay.stdout);
     let _ = std::fs::remove_file(&record);
     assert!(replay.status.success() && text.contains("every recorded state hash reproduced"), "replay:\n{text}");
+}
+
+/// What one owner of a world published, as a tap through the router saw it.
+#[derive(Default)]
+struct Owners {
+    /// Every world-wide message (events, corrections, confirmed, owner notices): its epoch and
+    /// when it came.
+    seen: Vec<(Option<Epoch>, Instant)>,
+    /// The confirmed batches, in arrival order: tick and epoch.
+    confirmed: Vec<(Tick, Option<Epoch>)>,
+}
+
+impl Owners {
+    fn take(&mut self, taps: &[&Tap]) {
+        for tap in taps {
+            for t in tap.drain_tapped() {
+                if let ServerMessage::Confirmed(b) = &t.msg {
+                    self.confirmed.push((b.tick, t.epoch));
+                }
+                self.seen.push((t.epoch, t.at));
+            }
+        }
+    }
+
+    /// The epochs heard from `from` on.
+    fn epochs_since(&self, from: Instant) -> BTreeMap<Option<Epoch>, usize> {
+        let mut n = BTreeMap::new();
+        for (e, at) in &self.seen {
+            if *at >= from {
+                *n.entry(*e).or_default() += 1;
+            }
+        }
+        n
+    }
+
+    /// Each tick confirmed once, in order, without a gap.
+    fn confirmed_once(&self) {
+        assert!(self.confirmed.len() > 300, "only {} confirmed ticks", self.confirmed.len());
+        for w in self.confirmed.windows(2) {
+            assert_eq!(w[1].0 .0, w[0].0 .0 + 1, "confirmed went from tick {:?} to {:?}", w[0], w[1]);
+        }
+    }
+}
+
+/// The taps a fencing test listens with: every world-wide stream, the owner's notices included.
+fn world_taps(s: &zenoh::Session, world: &WorldId) -> Vec<Tap> {
+    [keys::EVENTS, keys::CORRECTIONS, keys::CONFIRMED, keys::OWNER]
+        .iter()
+        .map(|k| Tap::new(s, &k.key(world, None)))
+        .collect()
+}
+
+/// A primary and a standby behind a router, and the primary stands still for 4 s (SIGSTOP, then
+/// SIGCONT: a hung host, a long pause) with its sockets open. Its lease runs out, the standby
+/// takes over as epoch 2, and when the primary resumes it publishes nothing more: it holds its
+/// messages, hears the newer owner, ends the world and exits with status 3. Through the router,
+/// every tick is confirmed exactly once across the takeover, nothing of epoch 1 arrives after the
+/// resume, and the world ends with one owner.
+#[test]
+fn a_stalled_primary_comes_back_fenced() {
+    let router = endpoint();
+    let _router = Proc::router("fence-router", &router, &[]);
+    std::thread::sleep(Duration::from_millis(500));
+    let mut primary = server("fence-primary", &["arena"], &router, &["--quiet"]);
+    assert!(primary.wait_for_output("listening on", Duration::from_secs(20)), "{}", primary.output());
+    let world = WorldId::new("arena").unwrap();
+    let s = through(&router);
+    let taps = world_taps(&s, &world);
+    let _tokens: Vec<_> = (0..4).map(|k| join(&s, &world, ClientId(400 + k))).collect();
+    std::thread::sleep(Duration::from_secs(1));
+    let mut standby = server("fence-standby", &["arena"], &router, &["--standby"]);
+    assert!(
+        standby.wait_for_output("following from the checkpoint", Duration::from_secs(20)),
+        "the standby never restored a checkpoint:\n{}",
+        standby.output()
+    );
+    let mut seen = Owners::default();
+    let pause = |d: Duration, seen: &mut Owners| {
+        let end = Instant::now() + d;
+        while Instant::now() < end {
+            seen.take(&taps.iter().collect::<Vec<_>>());
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    };
+    pause(Duration::from_secs(2), &mut seen);
+    primary.signal("STOP");
+    pause(Duration::from_secs(4), &mut seen);
+    primary.signal("CONT");
+    let resumed = Instant::now();
+    pause(Duration::from_secs(6), &mut seen);
+    let exit = primary.wait(Duration::from_secs(5));
+    let status = standby.stop();
+    std::thread::sleep(Duration::from_millis(500));
+    seen.take(&taps.iter().collect::<Vec<_>>());
+    let (p_out, s_out) = (primary.output(), standby.output());
+    assert!(status.is_some_and(|x| x.success()), "the standby did not stop cleanly:\n{s_out}");
+    assert!(s_out.contains("took over at tick") && s_out.contains("as epoch 2"), "no takeover at epoch 2:\n{s_out}");
+    assert!(p_out.contains("stood still for"), "the primary never saw it stood still:\n{p_out}");
+    assert!(p_out.contains("another server owns it now (epoch 2"), "the primary was not fenced:\n{p_out}");
+    assert_eq!(exit.and_then(|x| x.code()), Some(3), "the fenced primary did not exit with status 3:\n{p_out}");
+    // Nothing from the old owner once it resumed; the new owner's messages all carry its epoch.
+    let after = seen.epochs_since(resumed);
+    eprintln!("fence: epochs heard after the resume: {after:?}");
+    assert_eq!(after.get(&Some(Epoch(1))), None, "the primary published after it resumed: {after:?}");
+    assert_eq!(after.get(&None), None, "messages without an epoch: {after:?}");
+    assert!(after.get(&Some(Epoch(2))).is_some_and(|n| *n > 100), "the new owner was not heard: {after:?}");
+    seen.confirmed_once();
+    let epochs: BTreeSet<_> = seen.confirmed.iter().map(|(_, e)| *e).collect();
+    assert_eq!(epochs, BTreeSet::from([Some(Epoch(1)), Some(Epoch(2))]), "confirmed by {epochs:?}");
+}
+
+/// The only router restarts under a primary and a standby that reach each other through it
+/// alone (Zenoh clients of the router, as servers in separate network segments are): the standby
+/// sees the primary's token go with the router, and must not take over a world whose primary is
+/// alive. After the restart one owner publishes, at epoch 1, and no tick is confirmed twice.
+#[test]
+fn a_router_restart_leaves_one_owner() {
+    let router = endpoint();
+    let mut r = Proc::router("restart-router", &router, &[]);
+    std::thread::sleep(Duration::from_millis(500));
+    // Clients of the router: no direct link between the two servers that would carry the token.
+    let config = std::env::temp_dir().join(format!("impact-restart-{}.json5", std::process::id()));
+    std::fs::write(
+        &config,
+        r#"{ mode: "client", scouting: { multicast: { enabled: false } },
+             connect: { retry: { period_init_ms: 100, period_max_ms: 500, period_increase_factor: 2 } },
+             transport: { link: { tx: { lease: 1500 } } } }"#,
+    )
+    .expect("config");
+    let config_arg = config.to_string_lossy().to_string();
+    let client_mode = ["--quiet", "--zenoh-config", config_arg.as_str()];
+    let mut primary = server("restart-primary", &["arena"], &router, &client_mode);
+    assert!(primary.wait_for_output("listening on", Duration::from_secs(20)), "{}", primary.output());
+    let world = WorldId::new("arena").unwrap();
+    std::thread::sleep(Duration::from_secs(1));
+    let mut standby = server("restart-standby", &["arena"], &router, &["--standby", "--zenoh-config", &config_arg]);
+    assert!(
+        standby.wait_for_output("following from the checkpoint", Duration::from_secs(20)),
+        "the standby never restored a checkpoint:\n{}",
+        standby.output()
+    );
+    r.signal("KILL");
+    let _ = r.wait(Duration::from_secs(5));
+    std::thread::sleep(Duration::from_secs(1));
+    let _r2 = Proc::router("restart-router-2", &router, &[]);
+    std::thread::sleep(Duration::from_secs(2));
+    // A tap through the new router, from here on.
+    let s = through(&router);
+    let taps = world_taps(&s, &world);
+    let mut seen = Owners::default();
+    let from = Instant::now();
+    while from.elapsed() < Duration::from_secs(6) {
+        seen.take(&taps.iter().collect::<Vec<_>>());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let status = standby.stop();
+    let s_out = standby.output();
+    let p_status = primary.stop();
+    let p_out = primary.output();
+    let _ = std::fs::remove_file(&config);
+    assert!(!s_out.contains("took over"), "the standby took over from a live primary:\n{s_out}");
+    // It did see the token go: the case under test was reached.
+    let cut = s_out.lines().find(|l| l.contains("cut off from every router"));
+    eprintln!("router restart: {}", cut.unwrap_or("the standby never saw itself cut off"));
+    assert!(cut.is_some(), "the standby never saw itself cut off:\n{s_out}");
+    assert!(status.is_some_and(|x| x.success()), "the standby did not stop cleanly:\n{s_out}");
+    assert!(p_status.is_some_and(|x| x.success()), "the primary did not stop cleanly:\n{p_out}");
+    assert!(!p_out.contains("another server owns it"), "the primary was fenced:\n{p_out}");
+    let heard = seen.epochs_since(from);
+    eprintln!("router restart: epochs heard after it: {heard:?}");
+    assert_eq!(heard.keys().copied().collect::<Vec<_>>(), vec![Some(Epoch(1))], "owners heard: {heard:?}");
+    seen.confirmed_once();
 }
 
 /// Network namespaces of one test, deleted (with their veth links) when dropped.

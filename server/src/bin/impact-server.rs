@@ -417,8 +417,20 @@ fn serve(scenes: Vec<(Scene, PathBuf)>, args: &Args, users: Option<Users>, pool:
     let flag = stop.clone();
     ctrlc::set_handler(move || flag.store(true, std::sync::atomic::Ordering::SeqCst))
         .context("installing the Ctrl-C handler")?;
+    let mut fenced = Vec::new();
     for (world, summary) in host.run_until(&stop) {
-        println!("world {world} stopped: final confirmed events published\n{summary}");
+        if summary.fenced_by.is_some() {
+            println!("world {world} stopped: another server owns it\n{summary}");
+            fenced.push(world.to_string());
+        } else {
+            println!("world {world} stopped: final confirmed events published\n{summary}");
+        }
+    }
+    if !fenced.is_empty() {
+        // For a supervisor: this process lost its worlds to a newer owner (a standby that took
+        // over while it stood still); restart it with --standby.
+        eprintln!("impact-server: exiting with status 3: another server owns {}", fenced.join(", "));
+        std::process::exit(3);
     }
     Ok(())
 }

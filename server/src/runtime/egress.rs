@@ -1,8 +1,11 @@
 //! The egress thread: encodes and publishes what the tick thread hands it (encoding is off the
 //! tick thread, which only moves each message into the queue). Publishing uses congestion control
 //! `Drop`, so a slow subscriber loses its own messages and never holds anyone back; the input
-//! log alone uses `Block`, because a standby that missed an entry has to start over.
+//! log alone uses `Block`, because a standby that missed an entry has to start over. Each message
+//! carries the world's epoch as its attachment, and nothing goes out while the world is held or
+//! fenced ([`Owner`]).
 
+use super::owner::Owner;
 use impact_protocol::codec::encode;
 use impact_protocol::{Encoding, ServerMessage};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -44,19 +47,26 @@ pub enum Out {
 
 /// Runs until the sending side is dropped. `failures` counts the messages that could not be
 /// encoded (never: the server validates what it builds) or published.
-pub fn run(session: zenoh::Session, rx: Receiver<Out>, failures: Arc<AtomicU64>) {
-    let put = |key: String, msg: &ServerMessage, encoding: Encoding, congestion| match encode(msg, encoding) {
-        Ok(bytes) => {
-            session.put(key, bytes).encoding(encoding.zenoh_tag()).congestion_control(congestion).wait().is_ok()
+pub fn run(session: zenoh::Session, rx: Receiver<Out>, failures: Arc<AtomicU64>, owner: Arc<Owner>) {
+    let put = |key: String, msg: &ServerMessage, encoding: Encoding, congestion, stamp: Option<[u8; 8]>| {
+        let Ok(bytes) = encode(msg, encoding) else { return false };
+        let put = session.put(key, bytes).encoding(encoding.zenoh_tag()).congestion_control(congestion);
+        match stamp {
+            Some(a) => put.attachment(a.to_vec()).wait().is_ok(),
+            None => put.wait().is_ok(),
         }
-        Err(_) => false,
     };
     for out in rx {
+        let Ok(stamp) = owner.stamp() else { continue };
         let ok = match out {
-            Out::Put { key, msg, encoding } => put(key, &msg, encoding, zenoh::qos::CongestionControl::Drop),
-            Out::Log { key, msg, encoding } => put(key, &msg, encoding, zenoh::qos::CongestionControl::Block),
+            Out::Put { key, msg, encoding } => put(key, &msg, encoding, zenoh::qos::CongestionControl::Drop, stamp),
+            Out::Log { key, msg, encoding } => put(key, &msg, encoding, zenoh::qos::CongestionControl::Block, stamp),
             Out::Reply { query, bytes, encoding } => {
-                query.reply(query.key_expr().clone(), bytes).encoding(encoding.zenoh_tag()).wait().is_ok()
+                let reply = query.reply(query.key_expr().clone(), bytes).encoding(encoding.zenoh_tag());
+                match stamp {
+                    Some(a) => reply.attachment(a.to_vec()).wait().is_ok(),
+                    None => reply.wait().is_ok(),
+                }
             }
         };
         if !ok {

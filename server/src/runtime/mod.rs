@@ -22,6 +22,7 @@ mod egress;
 mod error;
 pub mod http;
 pub mod metrics;
+pub mod owner;
 mod server;
 pub mod state;
 mod thread_clock;

@@ -3,6 +3,7 @@
 use super::egress::{self, Out};
 use super::error::RuntimeError;
 use super::metrics::{Metrics, Totals};
+use super::owner::{epoch_of, Owner};
 use super::state::{Capture, StateCounters, StateOptions, Watcher};
 use super::timing::LeadEstimator;
 use crate::rollback::RollbackConfig;
@@ -207,6 +208,8 @@ struct ClientState {
 /// Counters shared with the callbacks.
 #[derive(Debug, Default)]
 struct Shared {
+    /// Who owns the world: the epoch every message carries, and the fence.
+    owner: Arc<Owner>,
     rejected_in_callbacks: [AtomicU64; RejectReason::ALL.len()],
     egress_dropped: AtomicU64,
     /// Set by [`ServerHandle::close`]: the clients are told, with where to go next and why.
@@ -300,7 +303,8 @@ struct Primary {
 
 fn start_world(zs: &Arc<Closer>, scene: Scene, opts: ServerOptions) -> Result<ServerHandle, RuntimeError> {
     let world_id = scene.name.clone();
-    let shared = Arc::new(Shared::default());
+    let owner = Arc::new(if opts.standby { Owner::default() } else { Owner::first() });
+    let shared = Arc::new(Shared { owner: owner.clone(), ..Shared::default() });
     let handle_shared = shared.clone();
     let (egress_tx, egress_rx) = sync_channel::<Out>(opts.egress_capacity);
     let (ingress_tx, ingress_rx) = sync_channel::<Ingress>(opts.ingress_capacity);
@@ -335,7 +339,20 @@ fn start_world(zs: &Arc<Closer>, scene: Scene, opts: ServerOptions) -> Result<Se
             .wait()
             .map_err(|e| RuntimeError::Zenoh(format!("declaring the presence subscriber: {e}")))?
     };
-    let follower = if opts.standby { Some(standby::Follower::start(&zs.0, &world_id)?) } else { None };
+    // Owners announce themselves: one that hears a newer epoch than its own is fenced, a standby
+    // learns the epoch it must take over above.
+    let owner_sub = {
+        let owner = owner.clone();
+        zs.0.declare_subscriber(keys::OWNER.key(&world_id, None))
+            .callback(move |sample| {
+                if let Some(e) = epoch_of(&sample) {
+                    owner.heard(e);
+                }
+            })
+            .wait()
+            .map_err(|e| RuntimeError::Zenoh(format!("declaring the owner subscriber: {e}")))?
+    };
+    let follower = if opts.standby { Some(standby::Follower::start(&zs.0, &world_id, &owner)?) } else { None };
     let primary = if opts.standby { None } else { Some(declare_primary(&zs.0, &world_id, &wiring)?) };
 
     let egress_session = zs.0.clone();
@@ -343,7 +360,7 @@ fn start_world(zs: &Arc<Closer>, scene: Scene, opts: ServerOptions) -> Result<Se
     let ef = egress_failures.clone();
     let egress_thread = std::thread::Builder::new()
         .name(format!("impact-egress-{world_id}"))
-        .spawn(move || egress::run(egress_session, egress_rx, ef))
+        .spawn(move || egress::run(egress_session, egress_rx, ef, owner))
         .map_err(|e| RuntimeError::Thread(e.to_string()))?;
 
     let state_counters = Arc::new(StateCounters::default());
@@ -351,9 +368,10 @@ fn start_world(zs: &Arc<Closer>, scene: Scene, opts: ServerOptions) -> Result<Se
         let (tx, rx) = sync_channel::<Capture>(2);
         let (session, world, so, enc, c) =
             (zs.0.clone(), world_id.clone(), opts.state.clone(), opts.encoding, state_counters.clone());
+        let owner = shared.owner.clone();
         let t = std::thread::Builder::new()
             .name(format!("impact-state-{world_id}"))
-            .spawn(move || super::state::run(session, world, so, enc, rx, c))
+            .spawn(move || super::state::run(session, world, so, enc, rx, c, owner))
             .map_err(|e| RuntimeError::Thread(e.to_string()))?;
         (Some(tx), Some(t))
     } else {
@@ -382,6 +400,7 @@ fn start_world(zs: &Arc<Closer>, scene: Scene, opts: ServerOptions) -> Result<Se
             // Undeclare the callbacks (they hold senders of the egress queue), then drop the
             // tick loop's sender: the queue closes, the egress thread drains it and ends.
             drop(presence_sub);
+            drop(owner_sub);
             drop(wiring);
             drop(t);
             let _ = egress_thread.join();

@@ -6,6 +6,8 @@ use std::path::Path;
 
 /// The lease a server announces, ms (keep-alives go four times per lease).
 pub const SERVER_LEASE_MS: &str = "1500";
+/// [`SERVER_LEASE_MS`] as a duration.
+pub const SERVER_LEASE: std::time::Duration = std::time::Duration::from_millis(1500);
 
 /// How a lost endpoint is tried again (see [`zenoh_config`]).
 pub const RETRY: &str = r#"{"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 2}"#;

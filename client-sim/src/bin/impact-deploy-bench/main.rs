@@ -408,8 +408,18 @@ fn failover(clients: u32, kills: u32, hang: bool) -> Result<()> {
         std::thread::sleep(Duration::from_secs(8));
         primary.signal(if hang { "STOP" } else { "KILL" });
         let killed = Instant::now();
+        // A stopped primary resumes 4 s later, under the load, after its standby took over: it
+        // must hold, hear the newer owner and exit with status 3, publishing nothing.
+        let mut primary = primary;
+        let resumed = if hang {
+            std::thread::sleep(Duration::from_secs(4));
+            primary.signal("CONT");
+            Some(Instant::now())
+        } else {
+            None
+        };
         let report = load.join().map_err(|_| anyhow::anyhow!("load panicked"))??;
-        // A stopped primary must never run again beside the standby that replaced it.
+        let old_exit = primary.wait(Duration::from_secs(5)).and_then(|x| x.code());
         primary.signal("KILL");
         standby.stop();
         let out = standby.output();
@@ -441,6 +451,17 @@ fn failover(clients: u32, kills: u32, hang: bool) -> Result<()> {
             .and_then(|n| n.parse::<u64>().ok())
             .context("the standby did not take over")?;
         let differed = out.contains("(0 hashes differed)");
+        if let Some(at) = resumed {
+            let after = seen.iter().filter(|(_, t, _)| *t > at).count();
+            let old = primary.output();
+            let fenced = old.contains("another server owns it now");
+            eprintln!(
+                "  kill {k}: the primary resumed: {} (exit status {old_exit:?}); {after} log entries after it, {} \
+                 messages of the old owner dropped by the players",
+                if fenced { "fenced" } else { "NOT fenced" },
+                report.stale_owner
+            );
+        }
         // Every acked input is in the confirmed log once: the log holds only acked inputs, so
         // as many distinct ones as acks, and none twice.
         let logged: Vec<(u32, u32)> = seen.iter().flat_map(|(_, _, i)| i.iter().copied()).collect();
@@ -458,7 +479,8 @@ fn failover(clients: u32, kills: u32, hang: bool) -> Result<()> {
                 "acks": report.acks, "acked_inputs_unaccounted": unaccounted, "inputs_logged_twice": logged_twice,
                 "inputs_unanswered": report.inputs_unanswered, "views_matched": report.views_matched,
                 "views_differed": report.views_mismatched, "standby_hashes_equal": differed,
-                "ack_ms_p99": report.latency_ms_p99 })
+                "ack_ms_p99": report.latency_ms_p99, "resumed_primary_exit": old_exit,
+                "stale_owner_dropped": report.stale_owner })
         );
         gaps.push(gap);
     }

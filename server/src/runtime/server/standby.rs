@@ -16,6 +16,7 @@
 use super::{Control, RuntimeError, TickLoop};
 use crate::rollback::log::{self, ConfirmedTick};
 use crate::rollback::{Advance, Session};
+use crate::runtime::owner::{epoch_of, reachable, Owner, HOLD_REACHABLE};
 use impact_core::sim::{SystemAction, TickInput};
 use impact_protocol::{
     decode, keys, Admitted, CollisionEvent, Encoding, EventKey, LogTick, ServerMessage, Tick, WorldId,
@@ -34,6 +35,14 @@ const FOLLOW_QUEUE: usize = 16_384;
 /// Log entries held while no checkpoint has been restored yet (the checkpoint's tick is among
 /// them or later).
 const EARLY_LOG: usize = 4_096;
+
+/// The most a takeover simulates beyond the primary's last tick for the time it was silent.
+const MAX_CATCH_UP: Duration = Duration::from_secs(10);
+
+/// How long a standby watches its own links after the primary's token went, before it takes
+/// over: a link lost under the standby itself is reported a little after the tokens that went
+/// with it.
+const LINKS_SETTLE: Duration = Duration::from_millis(200);
 
 /// The largest reply a checkpoint may be (a world of `max_bodies` bodies fits).
 const MAX_CHECKPOINT_BYTES: usize = 256 << 20;
@@ -77,15 +86,18 @@ pub(super) struct Follower {
 impl Follower {
     /// Subscribes to the world's log, admitted inputs, published and confirmed events and server
     /// token.
-    pub(super) fn start(zs: &zenoh::Session, world: &WorldId) -> Result<Follower, RuntimeError> {
+    pub(super) fn start(zs: &zenoh::Session, world: &WorldId, owner: &Arc<Owner>) -> Result<Follower, RuntimeError> {
         let (tx, rx) = sync_channel::<Followed>(FOLLOW_QUEUE);
         let lost = Arc::new(AtomicU64::new(0));
         let mut subs = Vec::new();
         for pattern in [keys::LOG, keys::LOG_ADMITTED, keys::EVENTS, keys::CORRECTIONS, keys::CONFIRMED] {
-            let (tx, lost) = (tx.clone(), lost.clone());
+            let (tx, lost, owner) = (tx.clone(), lost.clone(), owner.clone());
             let sub = zs
                 .declare_subscriber(pattern.key(world, None))
                 .callback(move |sample| {
+                    if let Some(e) = epoch_of(&sample) {
+                        owner.heard(e);
+                    }
                     let enc = Encoding::from_zenoh_tag(&sample.encoding().to_string()).unwrap_or(Encoding::MsgPack);
                     let bytes = sample.payload().to_bytes();
                     let msg = match decode::<ServerMessage>(&bytes, enc, MAX_CHECKPOINT_BYTES) {
@@ -134,6 +146,8 @@ struct Unconfirmed {
     newest: Option<Tick>,
     /// The newest tick the primary confirmed the events of.
     confirmed: Option<Tick>,
+    /// When the primary last said anything (a log entry, admitted inputs, events).
+    heard: Option<Instant>,
 }
 
 impl Unconfirmed {
@@ -195,6 +209,9 @@ impl TickLoop {
         let mut early: VecDeque<LogTick> = VecDeque::new();
         let mut pending = Unconfirmed::default();
         let mut primary_up = false;
+        // When the primary's token went, and when this process last reached nobody itself.
+        let mut down: Option<Instant> = None;
+        let mut unreachable_at: Option<Instant> = None;
         let mut asked: Option<Instant> = None;
         let mut refused: Option<String> = None;
         let mut lost_seen = 0;
@@ -252,7 +269,31 @@ impl TickLoop {
                     self.clients.values().filter(|c| c.present).count()
                 );
             }
-            match f.rx.recv_timeout(Duration::from_millis(20)) {
+            // A standby that was cut off itself saw the token go too, and must not take over:
+            // its links are watched for a moment after the token went (Zenoh reports the token
+            // gone a little before the link), and after being cut off it waits for the primary
+            // to come back through the restored links.
+            if let Some(d) = down.filter(|_| synced) {
+                if !reachable(zs) {
+                    if unreachable_at.is_none() {
+                        say(format!(
+                            "cut off from every router and peer ({} ms after the primary's token went): not taking \
+                             over until back and the primary still gone",
+                            d.elapsed().as_millis()
+                        ));
+                    }
+                    unreachable_at = Some(Instant::now());
+                } else if d.elapsed() >= LINKS_SETTLE && unreachable_at.is_none_or(|t| t.elapsed() >= HOLD_REACHABLE) {
+                    self.take_over(pending);
+                    return true;
+                }
+            }
+            let got = f.rx.recv_timeout(Duration::from_millis(20));
+            if let Ok(Followed::Log(_) | Followed::Admitted(_) | Followed::Published(_) | Followed::Confirmed(_)) = &got
+            {
+                pending.heard = Some(Instant::now());
+            }
+            match got {
                 Ok(Followed::Confirmed(t)) => pending.confirmed(t),
                 Ok(Followed::Log(l)) => {
                     pending.logged(l.tick);
@@ -271,14 +312,19 @@ impl TickLoop {
                     }
                 }
                 Ok(Followed::Published(m)) => pending.publish(m),
-                Ok(Followed::PrimaryUp) => primary_up = true,
+                Ok(Followed::PrimaryUp) => {
+                    if down.take().is_some() {
+                        say("the primary is back".into());
+                    }
+                    primary_up = true;
+                }
                 Ok(Followed::PrimaryDown) => {
                     primary_up = false;
                     if synced {
-                        self.take_over(pending);
-                        return true;
+                        down = Some(Instant::now());
+                    } else {
+                        say("the primary went before this standby had its state: waiting for another".into());
                     }
-                    say("the primary went before this standby had its state: waiting for another".into());
                 }
                 Err(RecvTimeoutError::Timeout) => {}
                 Err(RecvTimeoutError::Disconnected) => return false,
@@ -292,6 +338,9 @@ impl TickLoop {
         let replies = zs.get(selector).timeout(Duration::from_secs(5)).wait().map_err(|e| e.to_string())?;
         let reply = replies.recv().map_err(|_| "no server answered".to_string())?;
         let sample = reply.result().map_err(|e| format!("the server answered with an error: {e:?}"))?;
+        if let Some(e) = epoch_of(sample) {
+            self.shared.owner.heard(e);
+        }
         let bytes = sample.payload().to_bytes();
         let c = match decode::<ServerMessage>(&bytes, Encoding::MsgPack, MAX_CHECKPOINT_BYTES) {
             Ok(ServerMessage::Checkpoint(c)) => c,
@@ -378,6 +427,9 @@ impl TickLoop {
     /// The primary is gone: re-simulate its unconfirmed ticks with every input it acked, and
     /// publish them as this server's.
     fn take_over(&mut self, mut pending: Unconfirmed) {
+        // Owned above every epoch heard: the old primary, if it comes back, is fenced by it.
+        let owner = self.shared.owner.clone();
+        owner.own(owner.newest().next());
         let from = self.session.now();
         // Followed without a gap: every tick before the present one is logged. The confirmed
         // events of the last of them may not be out (the primary went between the two puts).
@@ -394,7 +446,13 @@ impl TickLoop {
         // or the newest it said anything about.
         let window = self.session.config().window_ticks;
         let by_window = logged.map(|c| Tick(c.0 + window));
-        let to = by_window.max(pending.newest).unwrap_or(from).max(from);
+        let primary_at = by_window.max(pending.newest).unwrap_or(from).max(from);
+        // ... when it last said anything. The world's clock goes on from where the primary's
+        // would be now, so the clients' clocks (which ran on) stay right: the ticks it was
+        // silent for are simulated too, with no inputs (none reached a server then).
+        let hz = f64::from(self.session.world().config.tick_hz);
+        let silent = pending.heard.map_or(Duration::ZERO, |t| t.elapsed()).min(MAX_CATCH_UP);
+        let to = Tick(primary_at.0 + (silent.as_secs_f64() * hz) as u32);
         for k in from.0..=to.0 {
             let (system, inputs) = pending.admitted.remove(&k).unwrap_or_default();
             self.summary.reapplied_inputs += inputs.len() as u64;
@@ -422,9 +480,10 @@ impl TickLoop {
         }
         self.summary.promoted_at = Some(self.session.now());
         eprintln!(
-            "impact-server: world {}: the primary is gone; took over at tick {} (logged up to {}, confirmed up to {}, {} ticks re-simulated, {} acked inputs re-applied)",
+            "impact-server: world {}: the primary is gone; took over at tick {} as epoch {} (logged up to {}, confirmed up to {}, {} ticks re-simulated, {} acked inputs re-applied)",
             self.world,
             self.session.now().0,
+            owner.newest(),
             self.earlier.log.map_or(-1, |t| i64::from(t.0)),
             self.earlier.confirmed.map_or(-1, |t| i64::from(t.0)),
             self.summary.caught_up_ticks,

@@ -66,6 +66,11 @@ pub struct Summary {
     /// As a standby that took over: the tick it took over at and the ticks it re-simulated from
     /// the last confirmed one (acked inputs re-applied).
     pub promoted_at: Option<Tick>,
+    /// Another server took the world over (its epoch): this one stopped publishing and ended it.
+    pub fenced_by: Option<impact_protocol::Epoch>,
+    /// Time spent holding every publication after the process stood still for longer than its
+    /// lease, ms.
+    pub held_ms: f64,
     /// Ticks re-simulated at the takeover.
     pub caught_up_ticks: u32,
     /// Acked inputs re-applied at the takeover.
@@ -167,6 +172,12 @@ impl std::fmt::Display for Summary {
                 "took over at tick {} ({} ticks re-simulated from the last confirmed one, {} acked inputs re-applied)",
                 t.0, self.caught_up_ticks, self.reapplied_inputs
             )?;
+        }
+        if self.held_ms > 0.0 {
+            writeln!(f, "held every message for {:.0} ms after standing still longer than the lease", self.held_ms)?;
+        }
+        if let Some(e) = self.fenced_by {
+            writeln!(f, "fenced: another server owns the world at epoch {e}; this one stopped publishing")?;
         }
         if self.state_client_frames > 0 || self.state_world_bytes > 0 {
             let tick_s = self.tick_ms_mean * self.ticks as f64 / 1e3;

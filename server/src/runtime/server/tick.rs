@@ -10,14 +10,15 @@ use super::{
 use crate::rollback::{RollbackConfig, Session};
 use crate::runtime::egress::Out;
 use crate::runtime::metrics::WorldMetrics;
+use crate::runtime::owner::{reachable, ANNOUNCE_EVERY, HOLD_REACHABLE, HOLD_UNREACHABLE};
 use crate::runtime::state::{Capture, StateCounters};
-use crate::runtime::thread_clock::ThreadClock;
+use crate::runtime::thread_clock::{ThreadClock, ThreadTimes};
 use crate::runtime::timing::LeadEstimator;
 use impact_core::scene::{avatar_position, AvatarRule, Scene};
 use impact_core::sim::{Plan, SystemAction};
 use impact_protocol::{
-    keys, Admitted, ClientId, CollisionEvent, Encoding, EntityId, EventBatch, InputAck, InputReject, LoggedInput,
-    RejectReason, ServerMessage, Tick, TimePing, TimePong, Welcome, WorldClosed, WorldId,
+    keys, Admitted, ClientId, CollisionEvent, Encoding, EntityId, Epoch, EventBatch, InputAck, InputReject,
+    LoggedInput, OwnerNotice, RejectReason, ServerMessage, Tick, TimePing, TimePong, Welcome, WorldClosed, WorldId,
 };
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -202,11 +203,28 @@ impl TickLoop {
         let started = Instant::now();
         let mut next = started;
         let mut last_stats = Instant::now();
+        let mut last_announce: Option<Instant> = None;
         let mut clock = ThreadClock::of_this_thread();
+        let mut last_pass = (Instant::now(), clock.read());
         self.first_in_line();
         loop {
             if stop.load(Ordering::SeqCst) || self.opts.max_ticks.is_some_and(|m| self.summary.ticks >= m) {
                 break;
+            }
+            if let Some(newer) = self.shared.owner.fenced() {
+                self.fence(newer);
+                break;
+            }
+            // Stood still for longer than the lease: a standby may own the world now.
+            let pass = (Instant::now(), clock.read());
+            last_pass = match stood_still(last_pass, pass) {
+                Some(stalled) if !self.hold_after_stall(zs, stop, stalled) => continue, // fenced, or stopping
+                Some(_) => (Instant::now(), clock.read()),
+                None => pass,
+            };
+            if self.primary.is_some() && last_announce.is_none_or(|t| t.elapsed() >= ANNOUNCE_EVERY) {
+                last_announce = Some(Instant::now());
+                self.announce();
             }
             // Deadline schedule. Behind by more than 4 ticks: drop the backlog and start a new
             // schedule from now (catching up by running ticks back to back would only make the
@@ -244,6 +262,10 @@ impl TickLoop {
             }
         }
         self.summary.run_s = started.elapsed().as_secs_f64();
+        if self.summary.fenced_by.is_some() {
+            // Another server owns the world: what this one still holds is not the world's.
+            return self.finish();
+        }
         // Shutdown: everything still in the window is final now.
         for (batch, log) in self.session.finish() {
             if self.earlier.confirmed(batch.tick) {
@@ -269,6 +291,70 @@ impl TickLoop {
             }
         }
         self.finish()
+    }
+
+    /// Says who owns the world, on `owner` (see [`crate::runtime::owner`]).
+    fn announce(&self) {
+        if let Some(epoch) = self.shared.owner.epoch() {
+            let notice = ServerMessage::Owner(OwnerNotice { epoch, tick: self.session.now() });
+            self.put(keys::OWNER.key(&self.world, None), notice, self.opts.encoding);
+        }
+    }
+
+    /// A newer owner was heard: this server publishes nothing more for the world (its egress
+    /// and state threads withhold everything from the moment it was heard) and ends it.
+    fn fence(&mut self, newer: Epoch) {
+        let own = self.shared.owner.epoch().unwrap_or_default();
+        self.summary.fenced_by = Some(newer);
+        eprintln!(
+            "impact-server: world {}: another server owns it now (epoch {newer}, this one's {own}); stopped \
+             publishing at tick {} and ending it (start this process again with --standby to follow the new owner)",
+            self.world,
+            self.session.now().0
+        );
+    }
+
+    /// After the process stood still for `stalled` (longer than its lease): holds every
+    /// publication until it has been reachable for [`HOLD_REACHABLE`] without hearing a newer
+    /// owner (or reached nobody for [`HOLD_UNREACHABLE`]). Returns whether it still owns the
+    /// world; `false` when a newer owner was heard (or the server is stopping).
+    fn hold_after_stall(&mut self, zs: &zenoh::Session, stop: &AtomicBool, stalled: Duration) -> bool {
+        let owner = self.shared.owner.clone();
+        owner.hold(true);
+        eprintln!(
+            "impact-server: world {}: this process stood still for {:.1} s, longer than its lease: holding its \
+             messages until it knows no other server took the world over",
+            self.world,
+            stalled.as_secs_f64()
+        );
+        let t0 = Instant::now();
+        let mut reachable_since: Option<Instant> = None;
+        let owned = loop {
+            if stop.load(Ordering::SeqCst) || owner.fenced().is_some() {
+                break false;
+            }
+            if reachable(zs) {
+                if reachable_since.get_or_insert_with(Instant::now).elapsed() >= HOLD_REACHABLE {
+                    break true;
+                }
+            } else {
+                reachable_since = None;
+                if t0.elapsed() >= HOLD_UNREACHABLE {
+                    break true;
+                }
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        self.summary.held_ms += t0.elapsed().as_secs_f64() * 1e3;
+        if owned {
+            owner.hold(false);
+            eprintln!(
+                "impact-server: world {}: no newer owner heard in {:.1} s: publishing again",
+                self.world,
+                t0.elapsed().as_secs_f64()
+            );
+        }
+        owned
     }
 
     /// Raises the tick thread's priority as [`ServerOptions::tick_nice`] says; a refusal is
@@ -729,4 +815,42 @@ impl TickLoop {
 /// A histogram of microseconds from 1 us to 1 h at three significant figures.
 fn micros() -> hdrhistogram::Histogram<u64> {
     hdrhistogram::Histogram::new_with_bounds(1, 3_600_000_000, 3).expect("the bounds are valid")
+}
+
+/// How long the process stood still between two passes of the tick loop, when that is longer
+/// than the server's lease: the wall time the tick thread neither ran nor waited for a core (a
+/// process stopped, a host or VM paused). A tick that was merely slow ran all along, so it is not
+/// a stall; where the system does not count a thread's times, the whole gap is taken.
+fn stood_still(before: (Instant, Option<ThreadTimes>), now: (Instant, Option<ThreadTimes>)) -> Option<Duration> {
+    let gap = now.0.saturating_duration_since(before.0);
+    let busy = match (before.1, now.1) {
+        (Some(b), Some(a)) => {
+            let t = a.since(b);
+            Duration::from_nanos(t.run_ns.saturating_add(t.wait_ns))
+        }
+        _ => Duration::ZERO,
+    };
+    let still = gap.saturating_sub(busy);
+    (still > crate::runtime::zenoh_config::SERVER_LEASE).then_some(still)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A stall is wall time the thread neither ran nor waited for a core, longer than the lease:
+    /// a process stopped for 4 s is one, a 4 s tick that ran all along is not.
+    #[test]
+    fn a_stall_is_time_the_thread_did_not_run() {
+        let t0 = Instant::now();
+        let at = |s: f64| t0 + Duration::from_secs_f64(s);
+        let times = |run_s: f64, wait_s: f64| {
+            Some(ThreadTimes { run_ns: (run_s * 1e9) as u64, wait_ns: (wait_s * 1e9) as u64 })
+        };
+        let stopped = stood_still((at(0.0), times(1.0, 0.1)), (at(4.0), times(1.01, 0.1)));
+        assert!(stopped.is_some_and(|d| d > Duration::from_millis(3900)), "{stopped:?}");
+        assert_eq!(stood_still((at(0.0), times(1.0, 0.0)), (at(4.0), times(4.5, 0.4))), None, "a slow tick");
+        assert_eq!(stood_still((at(0.0), times(1.0, 0.0)), (at(0.016), times(1.001, 0.0))), None, "a tick");
+        assert!(stood_still((at(0.0), None), (at(2.0), None)).is_some(), "no thread times: the gap decides");
+    }
 }

@@ -1,6 +1,7 @@
 //! The state thread: builds and publishes each capture's frames on Zenoh.
 
 use super::{Capture, StateCounters, StateOptions, Streams};
+use crate::runtime::owner::Owner;
 use impact_protocol::{keys, ClientId, Encoding, WorldId};
 use std::collections::BTreeMap;
 use std::sync::atomic::Ordering;
@@ -33,6 +34,7 @@ pub fn run(
     encoding: Encoding,
     rx: Receiver<Capture>,
     counters: Arc<StateCounters>,
+    owner: Arc<Owner>,
 ) {
     use zenoh::Wait;
     let drop = zenoh::qos::CongestionControl::Drop;
@@ -74,13 +76,15 @@ pub fn run(
                 }
             };
             deferred += u64::from(p.deferred);
+            // Held or fenced: nothing goes out. (A standby builds no frames: it has no epoch.)
+            let Ok(Some(stamp)) = owner.stamp() else { continue };
             match target {
                 Some(publisher) => {
-                    let _ = publisher.put(p.bytes).encoding(p.encoding.zenoh_tag()).wait();
+                    let _ = publisher.put(p.bytes).encoding(p.encoding.zenoh_tag()).attachment(stamp.to_vec()).wait();
                 }
                 None => {
-                    let _ =
-                        session.put(p.key, p.bytes).encoding(p.encoding.zenoh_tag()).congestion_control(drop).wait();
+                    let put = session.put(p.key, p.bytes).encoding(p.encoding.zenoh_tag());
+                    let _ = put.congestion_control(drop).attachment(stamp.to_vec()).wait();
                 }
             }
         }
