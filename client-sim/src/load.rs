@@ -671,10 +671,24 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
     let tty = std::io::stderr().is_terminal();
     let mut last_progress = Instant::now();
     let stop = run.load_end + cfg.settle;
+    // Each Zenoh session's link, looked at every 50 ms: when one comes back (a router
+    // restarted), its clients' views lost what the server published meanwhile.
+    let mut linked = vec![true; wiring.sessions.len()];
+    let mut links_checked = Instant::now();
     loop {
         let now = Instant::now();
         if now >= stop {
             break;
+        }
+        if now.duration_since(links_checked) >= Duration::from_millis(50) {
+            links_checked = now;
+            for (k, s) in wiring.sessions.iter().enumerate() {
+                let up = impact_client::transport::reachable(s);
+                if up && !linked[k] {
+                    run.link_restored(k, wiring.sessions.len(), now);
+                }
+                linked[k] = up;
+            }
         }
         if now >= run.load_end && received_at_end.is_none() {
             received_at_end = Some(wiring.counts());
@@ -714,6 +728,16 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
 }
 
 impl Run<'_> {
+    /// Zenoh session `session` (of `sessions`) has its link back: each of its clients is told.
+    fn link_restored(&mut self, session: usize, sessions: usize, now: Instant) {
+        self.r.links_restored += 1;
+        for (k, c) in self.clients.iter_mut().enumerate() {
+            if k % sessions == session {
+                c.session.link_restored(now);
+            }
+        }
+    }
+
     fn new(cfg: &LoadConfig, clients: Vec<Client>, sessions: usize) -> anyhow::Result<Run<'_>> {
         let load_start = Instant::now();
         Ok(Run {
@@ -1087,6 +1111,7 @@ impl Run<'_> {
         r.rollbacks_caused_per_s = r.rollbacks_caused as f64 / secs;
         r.views_matched = self.sessions().map(|s| s.events().matched).sum();
         r.views_mismatched = self.sessions().map(|s| s.events().mismatched).sum();
+        r.views_unverified = self.sessions().map(|s| s.events().unverified).sum();
         let retired = self.retired.iter().filter(|r| r.0).map(|r| &r.1);
         r.prediction =
             crate::report::Prediction::over(clients.iter().filter(|c| c.game).map(|c| &c.session).chain(retired));

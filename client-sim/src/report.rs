@@ -51,6 +51,11 @@ pub struct Report {
     /// Server messages of an older owner than one the client had heard (a primary that resumed
     /// after its standby took over), dropped.
     pub stale_owner: u64,
+    /// Times a Zenoh session of the load generator had its link back after losing it.
+    pub links_restored: u64,
+    /// Confirmed ticks not compared with a client's view, because its link was lost before them
+    /// (what the server published meanwhile never arrived).
+    pub views_unverified: u64,
     /// Times the server process was stalled (SIGSTOP) by the fault injection.
     pub server_stalls: u64,
     /// Input to ack latency, ms: median (round trip through the simulated network and the tick).
@@ -341,6 +346,13 @@ impl std::fmt::Display for Report {
             pct(self.late_share_steady)
         )?;
         writeln!(f, "  views    {} confirmed ticks matched, {} differed", self.views_matched, self.views_mismatched)?;
+        if self.links_restored > 0 {
+            writeln!(
+                f,
+                "           {} links lost and back; {} confirmed ticks before a link came back not compared",
+                self.links_restored, self.views_unverified
+            )?;
+        }
         self.prediction.write(f)?;
         if self.state_frames > 0 {
             writeln!(

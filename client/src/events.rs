@@ -26,6 +26,11 @@ pub struct EventView {
     pub corrections: u64,
     /// Ticks forgotten unconfirmed because [`MAX_TICKS`] were held.
     pub forgotten: u64,
+    /// Confirmed ticks not compared, because the link was lost before them (see
+    /// [`EventView::lost_before`]): taken from the confirmed batch as they are.
+    pub unverified: u64,
+    /// Ticks before this one may have lost provisional events or corrections to a lost link.
+    lost_before: Option<Tick>,
 }
 
 fn same(a: &CollisionEvent, b: &CollisionEvent) -> bool {
@@ -66,10 +71,21 @@ impl EventView {
         }
     }
 
+    /// The link was lost and is back, with the server at about `tick`: what was published
+    /// meanwhile never arrived, so the view of every tick before `tick` may lack events or
+    /// corrections. Their confirmations are not compared ([`EventView::unverified`]).
+    pub fn lost_before(&mut self, tick: Tick) {
+        self.lost_before = self.lost_before.max(Some(tick));
+    }
+
     /// Compares the view of a confirmed tick with the batch and forgets the tick. Returns
-    /// whether they were equal.
+    /// whether they were equal (`false` for a tick the link was lost before: take the batch).
     pub fn confirm(&mut self, b: &EventBatch) -> bool {
         let mine = self.ticks.remove(&b.tick).unwrap_or_default();
+        if self.lost_before.is_some_and(|t| b.tick < t) {
+            self.unverified += 1;
+            return false;
+        }
         let ok =
             mine.len() == b.events.len() && b.events.iter().all(|e| mine.get(&e.key()).is_some_and(|m| same(m, e)));
         if ok {
@@ -78,6 +94,11 @@ impl EventView {
             self.mismatched += 1;
         }
         ok
+    }
+
+    /// The newest tick held.
+    pub fn newest(&self) -> Option<Tick> {
+        self.ticks.last_key_value().map(|(t, _)| *t)
     }
 
     /// Ticks held (bounded by the server's window while confirmations arrive, and by
@@ -133,6 +154,26 @@ pub(crate) mod tests {
         v.events(&EventBatch { tick: Tick(6), revision: 0, events: vec![event(1, 2, 0.5)] });
         assert!(!v.confirm(&EventBatch { tick: Tick(6), revision: 0, events: vec![] }));
         assert_eq!(v.mismatched, 1);
+    }
+
+    /// A link lost and back before tick 10: a tick before it that lost its events to the outage
+    /// is taken from the confirmed batch without counting a mismatch; tick 10 and later are
+    /// compared as before.
+    #[test]
+    fn ticks_before_a_lost_link_came_back_are_not_compared() {
+        let mut v = EventView::default();
+        v.lost_before(Tick(10));
+        assert!(!v.confirm(&EventBatch { tick: Tick(9), revision: 0, events: vec![event(1, 2, 0.5)] }));
+        assert_eq!((v.matched, v.mismatched, v.unverified), (0, 0, 1));
+        v.events(&EventBatch { tick: Tick(10), revision: 0, events: vec![event(1, 2, 0.5)] });
+        assert!(!v.confirm(&EventBatch { tick: Tick(10), revision: 0, events: vec![] }));
+        assert_eq!((v.matched, v.mismatched, v.unverified), (0, 1, 1));
+        v.lost_before(Tick(4));
+        assert!(
+            !v.confirm(&EventBatch { tick: Tick(9), revision: 0, events: vec![] }),
+            "an earlier loss moves nothing"
+        );
+        assert_eq!(v.unverified, 2);
     }
 
     /// Confirmations that never come: the oldest ticks go past the bound, counted.

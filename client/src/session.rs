@@ -667,6 +667,22 @@ impl Session {
         self.receive(msg, now);
     }
 
+    /// The transport's link to the server was lost and is back at `now` (a router restarted, a
+    /// network handover): what the server published meanwhile never arrived, so the ticks before
+    /// the server's present are taken from the confirmed stream as they come, not compared with
+    /// the view ([`crate::events::EventView::unverified`]; their `EventNews::Confirmed` says
+    /// `matched: false`, so a game redraws them from the confirmed events).
+    pub fn link_restored(&mut self, now: Instant) {
+        // The clock's estimate of the server's present (or the newest tick held), and a margin
+        // for an estimate a little behind: a tick left out of the comparison costs nothing, a
+        // tick compared after losing its events is a false mismatch.
+        const MARGIN_TICKS: u32 = 8;
+        let newest = self.events.newest();
+        if let Some(t) = self.clock.server_tick(now).max(newest.map(Tick::next)) {
+            self.events.lost_before(Tick(t.0.saturating_add(MARGIN_TICKS)));
+        }
+    }
+
     /// The newest owner epoch heard (0 before any).
     pub fn epoch(&self) -> Epoch {
         self.epoch
@@ -969,6 +985,25 @@ mod tests {
         s.receive_from(Some(Epoch(2)), ack(42, 103, 2), t0);
         s.receive_from(None, ack(43, 104, 2), t0);
         assert_eq!((s.stats().unmatched_answers, s.epoch()), (3, Epoch(2)));
+    }
+
+    /// A link lost and back: the ticks the server published meanwhile are confirmed without a
+    /// comparison (their events never arrived), later ones are compared again.
+    #[test]
+    fn a_restored_link_leaves_the_ticks_before_it_uncompared() {
+        use impact_protocol::EventBatch;
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig::new(ClientId(7)));
+        s.receive(welcome(0), t0);
+        let batch = |tick| ServerMessage::Confirmed(EventBatch { tick: Tick(tick), revision: 0, events: vec![] });
+        let held = |tick| ServerMessage::Events(EventBatch { tick: Tick(tick), revision: 0, events: vec![] });
+        s.receive(held(101), t0);
+        s.link_restored(t0);
+        // Tick 102's events were published while the link was down: the view never had them.
+        s.receive(batch(102), t0);
+        assert_eq!((s.events().mismatched, s.events().unverified), (0, 1));
+        s.receive(batch(130), t0);
+        assert_eq!(s.events().matched, 1, "a tick after the link came back is compared");
     }
 
     /// Joins, probes one at a time, and plays once five answers came: the first lead is the

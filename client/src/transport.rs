@@ -331,8 +331,16 @@ pub struct Connection {
     encoding: Encoding,
     inbox: Receiver<Inbound>,
     dropped: Arc<AtomicU64>,
+    /// Whether the session had a link to a router or peer at the last pump.
+    linked: AtomicBool,
     _subscribers: Vec<::zenoh::pubsub::Subscriber<()>>,
     _token: ::zenoh::liveliness::LivelinessToken,
+}
+
+/// Whether a Zenoh session has a live link to a router or a peer.
+pub fn reachable(session: &::zenoh::Session) -> bool {
+    let info = session.info();
+    info.routers_zid().wait().next().is_some() || info.peers_zid().wait().next().is_some()
 }
 
 /// Looks for the world's server tokens at every protocol version, until `wait` passes: `Ok`
@@ -430,6 +438,7 @@ impl Connection {
             encoding: opts.encoding,
             inbox,
             dropped,
+            linked: AtomicBool::new(true),
             _subscribers: subscribers,
             _token: token,
         })
@@ -438,6 +447,13 @@ impl Connection {
     /// Hands `client` every message that arrived (at the instant it arrived), then sends what
     /// it gives at `now`.
     pub fn pump(&self, client: &mut Session, now: Instant) -> Result<(), TransportError> {
+        // A link that came back: what the server published meanwhile is lost to this client.
+        let up = reachable(&self.session);
+        if up && !self.linked.swap(up, Relaxed) {
+            client.link_restored(now);
+        } else {
+            self.linked.store(up, Relaxed);
+        }
         while let Ok(item) = self.inbox.try_recv() {
             match item {
                 Inbound::Msg(m, epoch, at) => client.receive_from(epoch, m, at),
