@@ -6,7 +6,7 @@
 mod common;
 
 use common::process::{server_binary, Proc};
-use common::{free_port, join};
+use common::{answers, free_port, join};
 use impact_client_sim::net::{self, Mode};
 use impact_protocol::{
     encode, keys, ClientId, ClientInput, ClientMessage, Encoding, Epoch, ServerMessage, Tick, WorldId,
@@ -570,6 +570,151 @@ fn a_router_restart_leaves_one_owner() {
     eprintln!("router restart: epochs heard after it: {heard:?}");
     assert_eq!(heard.keys().copied().collect::<Vec<_>>(), vec![Some(Epoch(1))], "owners heard: {heard:?}");
     seen.confirmed_once();
+}
+
+/// The users file of the router ACL test: three players and the deployment's server.
+const ROUTER_USERS: &str = r#"
+[[user]]
+name = "alice"
+password = "alice-secret"
+client = 1
+
+[[user]]
+name = "bob"
+password = "bob-secret"
+client = 2
+
+[[user]]
+name = "mallory"
+password = "mallory-secret"
+client = 3
+
+[[server]]
+name = "srv"
+password = "srv-secret"
+"#;
+
+/// Access control at the edge, as README deploys it: a zenohd router loaded with what
+/// `impact-server --users FILE --print-acl` prints (and the dictionary beside it), a server behind
+/// it without `--users` that authenticates as the deployment's `[[server]]`, and players in client
+/// mode through the router with their own credentials. Alice plays as usual; mallory cannot put an
+/// input on alice's key, read alice's answers (by key or by wildcard), or spawn bob with a token
+/// on bob's presence key; a session without the right password gets nowhere.
+#[test]
+fn the_router_enforces_the_acl_the_server_prints() {
+    let dir = std::env::temp_dir().join(format!("impact-router-acl-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let users = dir.join("users.toml");
+    let dict = dir.join("users.dict");
+    std::fs::write(&users, ROUTER_USERS).expect("users file");
+    std::fs::write(&dict, "alice:alice-secret\nbob:bob-secret\nmallory:mallory-secret\nsrv:srv-secret\n")
+        .expect("dict");
+    let printed = Command::new(server_binary())
+        .arg("--users")
+        .arg(&users)
+        .arg("--print-acl")
+        .arg("--dictionary-path")
+        .arg(&dict)
+        .output()
+        .expect("impact-server --print-acl");
+    assert!(printed.status.success(), "--print-acl: {}", String::from_utf8_lossy(&printed.stderr));
+    let mut config: serde_json::Value = serde_json::from_slice(&printed.stdout).expect("--print-acl prints JSON");
+    let router = endpoint();
+    config["mode"] = "router".into();
+    config["scouting"] = serde_json::json!({ "multicast": { "enabled": false } });
+    config["listen"] = serde_json::json!({ "endpoints": [router] });
+    let router_config = dir.join("router.json5");
+    std::fs::write(&router_config, config.to_string()).expect("router config");
+    let mut cmd = Command::new(common::process::zenohd());
+    cmd.arg("--config").arg(&router_config);
+    let _router = Proc::spawn("acl-router", cmd);
+    std::thread::sleep(Duration::from_millis(800));
+
+    // The server authenticates as the deployment's server; it enforces nothing itself.
+    let server_config = dir.join("server.json5");
+    let server_json = serde_json::json!({
+        "mode": "peer",
+        "scouting": { "multicast": { "enabled": false } },
+        "listen": { "endpoints": ["tcp/127.0.0.1:0"] },
+        "transport": { "auth": { "usrpwd": { "user": "srv", "password": "srv-secret" } } },
+    });
+    std::fs::write(&server_config, server_json.to_string()).expect("server config");
+    let server_config_arg = server_config.to_string_lossy().to_string();
+    let mut server = server("acl-server", &["arena"], &router, &["--quiet", "--zenoh-config", &server_config_arg]);
+    assert!(server.wait_for_output("listening on", Duration::from_secs(20)), "{}", server.output());
+    std::thread::sleep(Duration::from_millis(500));
+
+    let world = WorldId::new("arena").unwrap();
+    let player = |name: &str, password: &str| {
+        let creds = net::Credentials { user: name.into(), password: password.into() };
+        net::open(std::slice::from_ref(&router), None, Some(&creds), Mode::Client)
+    };
+    let alice = player("alice", "alice-secret").expect("alice connects through the router");
+    let mallory = player("mallory", "mallory-secret").expect("mallory connects");
+    assert!(player("alice", "wrong").is_err(), "a wrong password opened a session through the router");
+    let (alice_id, bob_id) = (ClientId(1), ClientId(2));
+    let alice_ack = Tap::new(&alice, &keys::CLIENT_ACK.key(&world, Some(alice_id)));
+    let stolen_ack = Tap::new(&mallory, &keys::CLIENT_ACK.key(&world, Some(alice_id)));
+    let stolen_all = Tap::new(&mallory, &format!("impact/v1/{world}/client/**"));
+    let _alice_token = join(&alice, &world, alice_id);
+    let welcome = |tap: &Tap| {
+        tap.wait_for(Duration::from_secs(10), |_, m, at| match m {
+            ServerMessage::Welcome(w) => Some((w.avatar.expect("arena spawns avatars"), w.tick, at)),
+            _ => None,
+        })
+    };
+    let (avatar, tick, at) = welcome(&alice_ack).expect("alice is welcomed through the router");
+    let walk = |seq: u32| ClientInput {
+        aim_tick: None,
+        view_tick: None,
+        client: alice_id,
+        seq,
+        tick: Tick(tick.0 + (at.elapsed().as_secs_f64() * 64.0) as u32 + 3),
+        actions: vec![impact_protocol::Action::SetVelocity { entity: avatar, velocity: [2.0, 0.0, 0.0] }],
+    };
+    let answer = |seq: u32, wait: Duration| {
+        alice_ack.wait_for(wait, |_, m, _| match m {
+            ServerMessage::Ack(a) if a.seq == seq => Some(true),
+            ServerMessage::Reject(r) if r.seq == Some(seq) => Some(false),
+            _ => None,
+        })
+    };
+    send(&alice, &world, &walk(1));
+    assert_eq!(answer(1, Duration::from_secs(5)), Some(true), "alice's own input is acked");
+    // Mallory puts an input on alice's key, with alice's id; alice's next proves the path live.
+    // (An answer to the forged one, before or after alice's, is looked for in the same wait.)
+    send(&mallory, &world, &walk(2));
+    send(&alice, &world, &walk(3));
+    let mut forged = None;
+    let third = alice_ack.wait_for(Duration::from_secs(5), |_, m, _| match m {
+        m if answers(m, 2) => {
+            forged = Some(format!("{m:?}"));
+            None
+        }
+        m if answers(m, 3) => Some(matches!(m, ServerMessage::Ack(_))),
+        _ => None,
+    });
+    assert_eq!(third, Some(true), "alice's third input");
+    let forged = forged.or_else(|| answer(2, Duration::from_millis(500)).map(|a| format!("answered {a}")));
+    assert_eq!(forged, None, "mallory's forged input reached the server");
+    // Mallory heard none of alice's answers.
+    let nothing = |tap: &Tap| tap.wait_for(Duration::from_millis(500), |k, m, _| Some(format!("{k}: {m:?}")));
+    assert_eq!(nothing(&stolen_ack), None, "mallory read alice's ack key through the router");
+    assert_eq!(nothing(&stolen_all), None, "mallory read another client's keys by wildcard");
+    // Mallory declares bob's presence token: no avatar, no welcome for bob; bob's own works.
+    let bob = player("bob", "bob-secret").expect("bob connects");
+    let bob_ack = Tap::new(&bob, &keys::CLIENT_ACK.key(&world, Some(bob_id)));
+    let spoofed = join(&mallory, &world, bob_id);
+    assert!(welcome(&bob_ack).is_none(), "a token on bob's key from mallory spawned bob");
+    drop(spoofed);
+    let _bob_token = join(&bob, &world, bob_id);
+    assert!(welcome(&bob_ack).is_some(), "bob's own token is honoured through the router");
+
+    let status = server.stop();
+    let out = server.output();
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(status.is_some_and(|x| x.success()), "the server did not stop cleanly:\n{out}");
+    assert!(out.contains("inputs accepted 2 "), "only alice's two inputs were accepted:\n{out}");
 }
 
 /// Network namespaces of one test, deleted (with their veth links) when dropped.

@@ -101,3 +101,12 @@ pub fn query(s: &zenoh::Session, key: String, params: &str) -> Option<ServerMess
     let reply = replies.recv().ok()?;
     impact_client_sim::net::decode_server(reply.result().ok()?).ok()
 }
+
+/// Whether `m` answers input `seq` (its ack or its reject).
+pub fn answers(m: &ServerMessage, seq: u32) -> bool {
+    match m {
+        ServerMessage::Ack(a) => a.seq == seq,
+        ServerMessage::Reject(r) => r.seq == Some(seq),
+        _ => false,
+    }
+}
