@@ -671,7 +671,7 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
     let tty = std::io::stderr().is_terminal();
     let mut last_progress = Instant::now();
     let stop = run.load_end + cfg.settle;
-    // Each Zenoh session's link, looked at every 50 ms: when one comes back (a router
+    // Each Zenoh session's link, looked at every 10 ms: when one comes back (a router
     // restarted), its clients' views lost what the server published meanwhile.
     let mut linked = vec![true; wiring.sessions.len()];
     let mut links_checked = Instant::now();
@@ -680,7 +680,7 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
         if now >= stop {
             break;
         }
-        if now.duration_since(links_checked) >= Duration::from_millis(50) {
+        if now.duration_since(links_checked) >= Duration::from_millis(10) {
             links_checked = now;
             for (k, s) in wiring.sessions.iter().enumerate() {
                 let up = impact_client::transport::reachable(s);
@@ -822,6 +822,15 @@ impl Run<'_> {
             return;
         }
         match &msg {
+            ServerMessage::Welcome(w) if w.client == c.id => {
+                // Welcomed again (a reconnect, a takeover): the seqs below next_seq were
+                // accepted, their acks lost with the old link.
+                let told: Vec<u32> = c.owed.range(..w.next_seq).map(|(seq, _)| *seq).collect();
+                for seq in told {
+                    c.accepted(seq);
+                    r.accepted_by_welcome += 1;
+                }
+            }
             ServerMessage::Ack(a) if a.client == c.id => {
                 // A second ack of one seq: an input applied twice.
                 r.answers_unexpected += u64::from(!c.accepted(a.seq));
@@ -900,6 +909,13 @@ impl Run<'_> {
                 let _ = s.draw_avatar(now);
             }
             for a in s.take_answers() {
+                if a.outcome == Outcome::Lost {
+                    // Known to the client as never having reached the server (PROTOCOL.md,
+                    // "Presence"): owed nothing, and not silent.
+                    c.owed.remove(&a.seq);
+                    self.r.inputs_known_lost += 1;
+                    continue;
+                }
                 if a.outcome == Outcome::AckLost {
                     // Told by a later ack: no round trip or margin of its own.
                     self.r.acks += 1;

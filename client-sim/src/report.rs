@@ -33,6 +33,11 @@ pub struct Report {
     pub rejects: BTreeMap<String, u64>,
     /// Inputs delivered but neither acked nor rejected (should be 0 once settled).
     pub inputs_unanswered: u64,
+    /// Inputs the client library answered itself as lost at a reconnect: sent while the link
+    /// was down, never accepted (`Outcome::Lost`).
+    pub inputs_known_lost: u64,
+    /// Inputs whose answers were lost with a link and a later welcome's `next_seq` told accepted.
+    pub accepted_by_welcome: u64,
     /// Inputs a world that closed never answered (void with it: PROTOCOL.md, "Worlds at run
     /// time").
     pub inputs_void_at_close: u64,
@@ -267,6 +272,34 @@ impl Report {
 /// The input lag past which the load generator did not keep up (a tick at 64 Hz).
 pub const LAG_BOUND_MS: f64 = 1000.0 / 64.0;
 
+impl Report {
+    /// The lines about links lost and back, reconnects and owners, where anything happened.
+    fn fmt_recovery(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.links_restored > 0 {
+            writeln!(
+                f,
+                "  links    {} lost and back; {} confirmed ticks before a link came back not compared with a view",
+                self.links_restored, self.views_unverified
+            )?;
+        }
+        if self.inputs_known_lost + self.accepted_by_welcome > 0 {
+            writeln!(
+                f,
+                "  resumed  {} inputs known lost at a reconnect (never reached the server), {} told accepted by a welcome",
+                self.inputs_known_lost, self.accepted_by_welcome
+            )?;
+        }
+        if self.stale_owner > 0 {
+            writeln!(
+                f,
+                "  owners   {} messages of an older owner dropped (a primary that resumed after a failover)",
+                self.stale_owner
+            )?;
+        }
+        Ok(())
+    }
+}
+
 impl std::fmt::Display for Report {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
@@ -279,13 +312,7 @@ impl std::fmt::Display for Report {
             "  inputs   sent {} ({} copies again) | lost in the network {} ({} messages) | delivered {} ({} twice) | acked {} ({} acks lost, told by the next) | unanswered {} | answered unexpectedly {}",
             self.inputs_sent, self.input_copies_sent, self.inputs_lost_in_network, self.messages_lost_in_network, self.inputs_delivered, self.inputs_duplicated, self.acks, self.acks_recovered, self.inputs_unanswered, self.answers_unexpected
         )?;
-        if self.stale_owner > 0 {
-            writeln!(
-                f,
-                "  owners   {} messages of an older owner dropped (a primary that resumed after a failover)",
-                self.stale_owner
-            )?;
-        }
+        self.fmt_recovery(f)?;
         if self.worlds_followed > 0 {
             writeln!(
                 f,
@@ -346,13 +373,6 @@ impl std::fmt::Display for Report {
             pct(self.late_share_steady)
         )?;
         writeln!(f, "  views    {} confirmed ticks matched, {} differed", self.views_matched, self.views_mismatched)?;
-        if self.links_restored > 0 {
-            writeln!(
-                f,
-                "           {} links lost and back; {} confirmed ticks before a link came back not compared",
-                self.links_restored, self.views_unverified
-            )?;
-        }
         self.prediction.write(f)?;
         if self.state_frames > 0 {
             writeln!(

@@ -21,6 +21,8 @@ pub struct Sent {
     pub tick: Tick,
     /// The view tick it carried (ahead timing), if any.
     pub view: Option<Tick>,
+    /// When a message last carried it (its first sending, or a copy in a later message).
+    pub carried: Instant,
 }
 
 /// Sequence numbers and inputs awaiting an answer (see the module docs).
@@ -83,6 +85,19 @@ impl Outbox {
         self.pending.remove(&seq)
     }
 
+    /// A message carried input `seq` again at `at` (a copy).
+    pub fn carried(&mut self, seq: u32, at: Instant) {
+        if let Some(s) = self.pending.get_mut(&seq) {
+            s.carried = s.carried.max(at);
+        }
+    }
+
+    /// Takes the inputs awaiting an answer that `lost` says are lost, oldest first.
+    pub fn take_pending(&mut self, mut lost: impl FnMut(u32, &Sent) -> bool) -> Vec<(u32, Sent)> {
+        let seqs: Vec<u32> = self.pending.iter().filter(|(&seq, s)| lost(seq, s)).map(|(&seq, _)| seq).collect();
+        seqs.into_iter().filter_map(|seq| self.pending.remove(&seq).map(|s| (seq, s))).collect()
+    }
+
     /// The ticks of the inputs awaiting an answer.
     pub fn pending_ticks(&self) -> impl Iterator<Item = Tick> + '_ {
         self.pending.values().map(|s| s.tick)
@@ -109,7 +124,7 @@ mod tests {
     fn inputs_are_numbered_matched_once_and_bounded() {
         let now = Instant::now();
         let mut o = Outbox::new(3);
-        let sent = |t: u32| Sent { at: now, tick: Tick(t), view: None };
+        let sent = |t: u32| Sent { at: now, tick: Tick(t), view: None, carried: now };
         let seqs: Vec<u32> = (0..5).map(|_| o.next_seq()).collect();
         assert_eq!(seqs, [1, 2, 3, 4, 5]);
         for &s in &seqs {

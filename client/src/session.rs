@@ -106,6 +106,17 @@ pub fn accepted_before(seq: u32, bits: u64) -> impl Iterator<Item = u32> {
     (0..64u32).filter(move |k| bits & (1 << k) != 0).filter_map(move |k| seq.checked_sub(k + 1))
 }
 
+/// See [`Session::lost_at_welcome`].
+#[derive(Clone, Copy, Debug)]
+struct LostCheck {
+    /// When the welcome came.
+    welcomed: Instant,
+    /// When the inputs sent before it and still unanswered are lost.
+    due: Instant,
+    /// The welcome's `next_seq`.
+    next_seq: u32,
+}
+
 /// What the server did with an input.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Outcome {
@@ -122,6 +133,11 @@ pub enum Outcome {
     AckLost,
     /// Refused, for this reason (PROTOCOL.md, "Rejects").
     Rejected(RejectReason),
+    /// Never reached the server: the welcome after a reconnect or a takeover (`next_seq`) said
+    /// it was not accepted, it was last sent before that welcome, and a round trip after it
+    /// (with a margin) no answer had come. Its actions were not applied; send them again as a
+    /// new input if they still matter.
+    Lost,
 }
 
 /// How a session behaves.
@@ -213,6 +229,8 @@ pub struct SessionStats {
     /// Acked inputs that arrived after their tick had begun (`margin_ticks < 0`): the server
     /// rolled back for each.
     pub late_acks: u64,
+    /// Inputs that never reached the server, found at a reconnect or takeover ([`Outcome::Lost`]).
+    pub inputs_lost: u64,
     /// Inputs refused, by reason (rejects that name no seq included).
     pub rejects: BTreeMap<RejectReason, u64>,
     /// Acks and rejects that matched no input awaiting an answer.
@@ -335,6 +353,8 @@ pub struct Session {
     heard: Option<Instant>,
     /// The newest owner epoch heard (see [`Session::receive_from`]).
     epoch: Epoch,
+    /// After a second welcome: when to answer the inputs it left unaccepted as lost.
+    lost_check: Option<LostCheck>,
 }
 
 impl Session {
@@ -369,6 +389,7 @@ impl Session {
             closed: None,
             heard: None,
             epoch: Epoch::default(),
+            lost_check: None,
         }
     }
 
@@ -617,7 +638,7 @@ impl Session {
         if let Some(p) = self.predictor.as_mut() {
             match outcome {
                 Outcome::Accepted { applied_tick, .. } => p.answered(seq, Some(applied_tick)),
-                Outcome::Rejected(_) => p.answered(seq, None),
+                Outcome::Rejected(_) | Outcome::Lost => p.answered(seq, None),
                 // Applied, most likely at its tick: the prediction keeps it where it is.
                 Outcome::AckLost => {}
             }
@@ -812,6 +833,9 @@ impl Session {
         // connection): nothing to resend. Ours go on from wherever is further.
         self.resend.retain(|i| i.seq >= w.next_seq);
         self.outbox.resume_from(w.next_seq);
+        if self.stats.welcomes > 1 {
+            self.lost_at_welcome(&w, now);
+        }
         if let Some(Err(e)) = self.predictor.as_ref().map(|p| p.check(w.scene_hash)) {
             self.prediction_problem = Some(e);
             self.predictor = None;
@@ -821,6 +845,30 @@ impl Session {
             self.sync_started = Some(now);
         }
         self.welcome = Some(w);
+    }
+
+    /// Welcomed again (a reconnect, a takeover): the inputs at or above `next_seq` were never
+    /// accepted. Those sent before this welcome may still be on their way; a round trip later
+    /// (with a margin) every one still unanswered and not carried again since is lost: it is
+    /// answered then, [`Outcome::Lost`] ([`Session::poll_transmit`] looks), so none is silently
+    /// gone.
+    fn lost_at_welcome(&mut self, w: &Welcome, now: Instant) {
+        let hz = f64::from(w.tick_hz.max(1));
+        let rtt = self.clock.lead().map_or(0.0, |l| l / hz).max(self.stats.sync_rtt_max_s);
+        let due = now + Duration::from_secs_f64(rtt * 2.0 + 0.1);
+        self.lost_check = Some(LostCheck { welcomed: now, due, next_seq: w.next_seq });
+    }
+
+    /// The check [`Session::lost_at_welcome`] scheduled, once it is due.
+    fn check_lost(&mut self, now: Instant) {
+        let Some(c) = self.lost_check.filter(|c| now >= c.due) else { return };
+        self.lost_check = None;
+        let lost = |seq: u32, s: &Sent| seq >= c.next_seq && s.carried < c.welcomed;
+        for (seq, sent) in self.outbox.take_pending(lost) {
+            self.resend.retain(|i| i.seq != seq);
+            self.stats.inputs_lost += 1;
+            self.answered(seq, sent, Outcome::Lost, now);
+        }
     }
 
     /// Ends the sync: the soonest answer anchors the clock, the slowest round trip (in ticks,
@@ -860,7 +908,7 @@ impl Session {
         let fires = actions.iter().any(|a| matches!(a, Action::FireRay { .. }));
         let aim_tick = self.render_tick(now).filter(|_| fires).map(|r| Tick(r.floor().max(0.0) as u32));
         let input = ClientInput { client: self.cfg.client, seq, tick, view_tick, aim_tick, actions };
-        self.outbox.sent(seq, Sent { at: now, tick, view: view_tick });
+        self.outbox.sent(seq, Sent { at: now, tick, view: view_tick, carried: now });
         if let Some(p) = self.predictor.as_mut() {
             p.input(tick, seq, &input.actions);
         }
@@ -877,6 +925,9 @@ impl Session {
             inputs.push(old.clone());
         }
         self.stats.copies_sent += inputs.len() as u64;
+        for copy in &inputs {
+            self.outbox.carried(copy.seq, now);
+        }
         inputs.reverse();
         let msg = if inputs.is_empty() {
             ClientMessage::Input(input.clone())
@@ -905,6 +956,7 @@ impl Session {
     /// The next message to send at `now`, if any: the sync's probes, then inputs in order.
     /// Call it until it returns `None` each frame.
     pub fn poll_transmit(&mut self, now: Instant) -> Option<ClientMessage> {
+        self.check_lost(now);
         if self.status == Status::Syncing {
             let started = *self.sync_started.get_or_insert(now);
             if now.saturating_duration_since(started) >= SYNC_TIMEOUT {
@@ -985,6 +1037,34 @@ mod tests {
         s.receive_from(Some(Epoch(2)), ack(42, 103, 2), t0);
         s.receive_from(None, ack(43, 104, 2), t0);
         assert_eq!((s.stats().unmatched_answers, s.epoch()), (3, Epoch(2)));
+    }
+
+    /// Welcomed again after a reconnect: an input sent before the welcome that the server never
+    /// accepted (at or above next_seq) and that no answer follows within a round trip is
+    /// answered as lost; one accepted before (below next_seq) is not; one sent after the welcome
+    /// keeps waiting for its answer.
+    #[test]
+    fn inputs_lost_with_the_link_are_answered_as_lost() {
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig { redundancy: 0, ..SessionConfig::new(ClientId(7)) });
+        s.receive(welcome(0), t0);
+        let mut t = t0 + SYNC_TIMEOUT;
+        while s.status() == Status::Syncing {
+            let _ = s.poll_transmit(t);
+            t += Duration::from_millis(50);
+        }
+        let seqs: Vec<u32> = (0..3).map(|_| s.input(walk(), t).unwrap()).collect();
+        while s.poll_transmit(t).is_some() {}
+        // The link drops; back, the server welcomes again: it accepted the first input only.
+        t += Duration::from_secs(1);
+        s.receive(welcome(seqs[0] + 1), t);
+        let after = s.input(walk(), t).unwrap();
+        assert!(s.take_answers().next().is_none(), "nothing is lost before a round trip has passed");
+        t += Duration::from_secs(2);
+        while s.poll_transmit(t).is_some() {}
+        let answers: Vec<(u32, Outcome)> = s.take_answers().map(|a| (a.seq, a.outcome)).collect();
+        assert_eq!(answers, vec![(seqs[1], Outcome::Lost), (seqs[2], Outcome::Lost)]);
+        assert_eq!((s.stats().inputs_lost, s.pending_inputs()), (2, 1), "input {after} still waits");
     }
 
     /// A link lost and back: the ticks the server published meanwhile are confirmed without a
