@@ -1065,6 +1065,10 @@ impl Run<'_> {
         r.inputs_lost_in_network = r.inputs_sent.saturating_sub(r.inputs_delivered);
         r.messages_lost_in_network = self.up.lost;
         r.inputs_unanswered = clients.iter().map(|c| c.owed.values().map(|&n| u64::from(n)).sum::<u64>()).sum();
+        // Unanswered counts deliveries (a rejected input owes an answer per copy); this counts
+        // inputs: those the clients still await an answer for, after the settle.
+        r.inputs_awaited =
+            clients.iter().map(|c| c.owed.keys().filter(|&&seq| c.session.awaits(seq)).count() as u64).sum();
         r.latency_ms_p50 = latency.value_at_quantile(0.5) as f64 / 1000.0;
         r.latency_ms_p99 = latency.value_at_quantile(0.99) as f64 / 1000.0;
         r.latency_ms_max = latency.max() as f64 / 1000.0;

@@ -33,6 +33,10 @@ pub struct Report {
     pub rejects: BTreeMap<String, u64>,
     /// Inputs delivered but neither acked nor rejected (should be 0 once settled).
     pub inputs_unanswered: u64,
+    /// Of the unanswered deliveries, the inputs their clients still await an answer for (the
+    /// rest are copies of inputs that were answered: a rejected input owes an answer per copy,
+    /// and a copy that died with a link never gets one).
+    pub inputs_awaited: u64,
     /// Inputs the client library answered itself as lost at a reconnect: sent while the link
     /// was down, never accepted (`Outcome::Lost`).
     pub inputs_known_lost: u64,
@@ -285,8 +289,9 @@ impl Report {
         if self.inputs_known_lost + self.accepted_by_welcome > 0 {
             writeln!(
                 f,
-                "  resumed  {} inputs known lost at a reconnect (never reached the server), {} told accepted by a welcome",
-                self.inputs_known_lost, self.accepted_by_welcome
+                "  resumed  {} inputs known lost at a reconnect (never reached the server), {} told accepted by a \
+                 welcome; of the unanswered deliveries, {} inputs still awaited",
+                self.inputs_known_lost, self.accepted_by_welcome, self.inputs_awaited
             )?;
         }
         if self.stale_owner > 0 {

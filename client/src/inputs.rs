@@ -103,6 +103,11 @@ impl Outbox {
         self.pending.values().map(|s| s.tick)
     }
 
+    /// Whether input `seq` awaits an answer.
+    pub fn awaits(&self, seq: u32) -> bool {
+        self.pending.contains_key(&seq)
+    }
+
     /// Inputs awaiting an answer.
     pub fn pending(&self) -> usize {
         self.pending.len()

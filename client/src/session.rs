@@ -662,6 +662,11 @@ impl Session {
         &self.stats
     }
 
+    /// Whether input `seq` awaits an answer.
+    pub fn awaits(&self, seq: u32) -> bool {
+        self.outbox.awaits(seq)
+    }
+
     /// Inputs awaiting an answer.
     pub fn pending_inputs(&self) -> usize {
         self.outbox.pending()
