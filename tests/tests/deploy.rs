@@ -572,28 +572,6 @@ fn a_router_restart_leaves_one_owner() {
     seen.confirmed_once();
 }
 
-/// The users file of the router ACL test: three players and the deployment's server.
-const ROUTER_USERS: &str = r#"
-[[user]]
-name = "alice"
-password = "alice-secret"
-client = 1
-
-[[user]]
-name = "bob"
-password = "bob-secret"
-client = 2
-
-[[user]]
-name = "mallory"
-password = "mallory-secret"
-client = 3
-
-[[server]]
-name = "srv"
-password = "srv-secret"
-"#;
-
 /// Access control at the edge, as README deploys it: a zenohd router loaded with what
 /// `impact-server --users FILE --print-acl` prints (and the dictionary beside it), a server behind
 /// it without `--users` that authenticates as the deployment's `[[server]]`, and players in client
@@ -606,7 +584,7 @@ fn the_router_enforces_the_acl_the_server_prints() {
     std::fs::create_dir_all(&dir).expect("temp dir");
     let users = dir.join("users.toml");
     let dict = dir.join("users.dict");
-    std::fs::write(&users, ROUTER_USERS).expect("users file");
+    std::fs::write(&users, common::USERS).expect("users file");
     std::fs::write(&dict, "alice:alice-secret\nbob:bob-secret\nmallory:mallory-secret\nsrv:srv-secret\n")
         .expect("dict");
     let printed = Command::new(server_binary())

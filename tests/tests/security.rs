@@ -11,23 +11,6 @@ use impact_protocol::{keys, Action, ClientId, ClientInput, Encoding, EntityId, S
 use impact_server::runtime::auth::Users;
 use std::time::Duration;
 
-const USERS: &str = r#"
-[[user]]
-name = "alice"
-password = "alice-secret"
-client = 1
-
-[[user]]
-name = "bob"
-password = "bob-secret"
-client = 2
-
-[[user]]
-name = "mallory"
-password = "mallory-secret"
-client = 3
-"#;
-
 fn secured() -> (impact_server::runtime::ServerHandle, String) {
     let scene = Scene::load(&Scene::bundled_path("arena")).unwrap();
     server(scene, |o| o.users = Some(Users::parse(USERS).unwrap()))

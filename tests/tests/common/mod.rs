@@ -12,6 +12,29 @@ use std::sync::mpsc::{sync_channel, Receiver};
 use std::time::{Duration, Instant};
 use zenoh::Wait;
 
+/// The users file of the access-control tests: three players (alice, bob, mallory: clients 1, 2,
+/// 3) and the deployment's server (`srv`, for a server behind a router that enforces).
+pub const USERS: &str = r#"
+[[user]]
+name = "alice"
+password = "alice-secret"
+client = 1
+
+[[user]]
+name = "bob"
+password = "bob-secret"
+client = 2
+
+[[user]]
+name = "mallory"
+password = "mallory-secret"
+client = 3
+
+[[server]]
+name = "srv"
+password = "srv-secret"
+"#;
+
 /// A free TCP port on loopback (bound and released; the race is harmless in tests).
 pub fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr()).map(|a| a.port()).expect("a free port")
