@@ -433,11 +433,12 @@ impl Owners {
         n
     }
 
-    /// Each tick confirmed once, in order, without a gap.
-    fn confirmed_once(&self) {
-        assert!(self.confirmed.len() > 300, "only {} confirmed ticks", self.confirmed.len());
+    /// Each tick confirmed once, in order, without a gap; `servers` (what they printed) is
+    /// shown if not.
+    fn confirmed_once(&self, servers: &str) {
+        assert!(self.confirmed.len() > 300, "only {} confirmed ticks:\n{servers}", self.confirmed.len());
         for w in self.confirmed.windows(2) {
-            assert_eq!(w[1].0 .0, w[0].0 .0 + 1, "confirmed went from tick {:?} to {:?}", w[0], w[1]);
+            assert_eq!(w[1].0 .0, w[0].0 .0 + 1, "confirmed went from tick {:?} to {:?}:\n{servers}", w[0], w[1]);
         }
     }
 }
@@ -504,7 +505,7 @@ fn a_stalled_primary_comes_back_fenced() {
     assert_eq!(after.get(&Some(Epoch(1))), None, "the primary published after it resumed: {after:?}");
     assert_eq!(after.get(&None), None, "messages without an epoch: {after:?}");
     assert!(after.get(&Some(Epoch(2))).is_some_and(|n| *n > 100), "the new owner was not heard: {after:?}");
-    seen.confirmed_once();
+    seen.confirmed_once(&format!("{p_out}\n{s_out}"));
     let epochs: BTreeSet<_> = seen.confirmed.iter().map(|(_, e)| *e).collect();
     assert_eq!(epochs, BTreeSet::from([Some(Epoch(1)), Some(Epoch(2))]), "confirmed by {epochs:?}");
 }
@@ -569,7 +570,7 @@ fn a_router_restart_leaves_one_owner() {
     let heard = seen.epochs_since(from);
     eprintln!("router restart: epochs heard after it: {heard:?}");
     assert_eq!(heard.keys().copied().collect::<Vec<_>>(), vec![Some(Epoch(1))], "owners heard: {heard:?}");
-    seen.confirmed_once();
+    seen.confirmed_once(&format!("{p_out}\n{s_out}"));
 }
 
 /// Access control at the edge, as README deploys it: a zenohd router loaded with what
