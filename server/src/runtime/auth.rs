@@ -291,8 +291,12 @@ impl Dictionary {
     fn write(text: &str) -> Result<Dictionary, RuntimeError> {
         use std::io::Write;
         use std::os::unix::fs::OpenOptionsExt;
+        // The clock alone is not enough: two servers started at once in one process (tests do)
+        // read the same nanosecond often enough to collide.
+        static MADE: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        let n = MADE.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
-        let path = std::env::temp_dir().join(format!("impact-users-{}-{nanos}.dict", std::process::id()));
+        let path = std::env::temp_dir().join(format!("impact-users-{}-{nanos}-{n}.dict", std::process::id()));
         let mut f =
             std::fs::OpenOptions::new().write(true).create_new(true).mode(0o600).open(&path).map_err(|e| {
                 RuntimeError::Config(format!("writing the password dictionary {}: {e}", path.display()))
