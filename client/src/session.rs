@@ -117,6 +117,11 @@ struct LostCheck {
     next_seq: u32,
 }
 
+/// How long a tick a message named stands as evidence of the server's present
+/// ([`Session::link_restored`]): run on at the full rate, it overestimates a server that stalled
+/// since, and only for this long.
+const NAMED_FOR: Duration = Duration::from_secs(10);
+
 /// What the server did with an input.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Outcome {
@@ -135,8 +140,9 @@ pub enum Outcome {
     Rejected(RejectReason),
     /// Never reached the server: the welcome after a reconnect or a takeover (`next_seq`) said
     /// it was not accepted, it was last sent before that welcome, and a round trip after it
-    /// (with a margin) no answer had come. Its actions were not applied; send them again as a
-    /// new input if they still matter.
+    /// (with a margin) no answer had come; or an input made after its last copy went was acked,
+    /// and that ack does not count it accepted (a client's messages arrive in order). Its
+    /// actions were not applied; send them again as a new input if they still matter.
     Lost,
 }
 
@@ -355,6 +361,10 @@ pub struct Session {
     epoch: Epoch,
     /// After a second welcome: when to answer the inputs it left unaccepted as lost.
     lost_check: Option<LostCheck>,
+    /// The freshest evidence of the server's tick: a tick a message named and when it came,
+    /// the one that run on at the full rate puts the server furthest (a message that came late
+    /// names an old tick and does not replace it), for at most [`NAMED_FOR`].
+    newest_named: Option<(Tick, Instant)>,
 }
 
 impl Session {
@@ -390,6 +400,7 @@ impl Session {
             heard: None,
             epoch: Epoch::default(),
             lost_check: None,
+            newest_named: None,
         }
     }
 
@@ -701,10 +712,13 @@ impl Session {
     pub fn link_restored(&mut self, now: Instant) {
         // The clock's estimate of the server's present (or the newest tick held), and a margin
         // for an estimate a little behind: a tick left out of the comparison costs nothing, a
-        // tick compared after losing its events is a false mismatch.
+        // tick compared after losing its events is a false mismatch. Nor less than the newest
+        // tick heard, run on at the full rate since: a clock pulled back by old messages that
+        // came late (a flood after a stall on the client's side) would miss ticks lost.
         const MARGIN_TICKS: u32 = 8;
         let newest = self.events.newest();
-        if let Some(t) = self.clock.server_tick(now).max(newest.map(Tick::next)) {
+        let run_on = self.newest_named.map(|n| Tick(self.run_on(n, now) as u32));
+        if let Some(t) = self.clock.server_tick(now).max(newest.map(Tick::next)).max(run_on) {
             self.events.lost_before(Tick(t.0.saturating_add(MARGIN_TICKS)));
         }
     }
@@ -740,11 +754,13 @@ impl Session {
                     self.late_ticks.push_back(a.applied_tick);
                 }
                 self.resend.retain(|i| i.seq != a.seq);
-                if let Some(sent) = self.outbox.answered(a.seq) {
+                let made = self.outbox.answered(a.seq).map(|sent| {
                     self.stats.inputs_acked += 1;
                     let outcome = Outcome::Accepted { applied_tick: a.applied_tick, margin_ticks: a.margin_ticks };
                     self.answered(a.seq, sent, outcome, now);
-                } else {
+                    sent.at
+                });
+                if made.is_none() {
                     self.stats.unmatched_answers += 1;
                 }
                 // Inputs before it the server accepted whose own acks never came.
@@ -755,6 +771,9 @@ impl Session {
                         self.stats.acks_recovered += 1;
                         self.answered(seq, sent, Outcome::AckLost, now);
                     }
+                }
+                if let Some(made) = made {
+                    self.lost_before(&a, made, now);
                 }
             }
             ServerMessage::Reject(j) if j.client == me => {
@@ -823,8 +842,18 @@ impl Session {
         }
     }
 
+    /// Where the server would be at `now` had it ticked at the full rate since it named `tick`
+    /// at `at` (further than it is if it stalled since: an estimate never short).
+    fn run_on(&self, (tick, at): (Tick, Instant), now: Instant) -> f64 {
+        let hz = f64::from(self.clock.tick_hz().unwrap_or(0));
+        f64::from(tick.0) + now.saturating_duration_since(at).as_secs_f64() * hz
+    }
+
     fn observe(&mut self, tick: Tick, now: Instant) {
         self.stats.clock_resyncs += u64::from(self.clock.observe(tick, now));
+        if self.newest_named.is_none_or(|n| f64::from(tick.0) >= self.run_on(n, now) || now - n.1 > NAMED_FOR) {
+            self.newest_named = Some((tick, now));
+        }
     }
 
     fn welcomed(&mut self, w: Welcome, now: Instant) {
@@ -862,6 +891,25 @@ impl Session {
         let rtt = self.clock.lead().map_or(0.0, |l| l / hz).max(self.stats.sync_rtt_max_s);
         let due = now + Duration::from_secs_f64(rtt * 2.0 + 0.1);
         self.lost_check = Some(LostCheck { welcomed: now, due, next_seq: w.next_seq });
+    }
+
+    /// An ack of an input made at `made`: an earlier input within its `accepted_before` bits
+    /// that the server did not accept, and that no message carried since that input was made,
+    /// never reached the server. A client's messages arrive in order, so every copy of it came
+    /// (if at all) before the acked one, and was neither accepted (its bit) nor rejected (the
+    /// reject, on the same key, would have come first). It is answered [`Outcome::Lost`]: its
+    /// every copy was lost on the way (or went to a server that died, or through a router that
+    /// restarted), with no welcome after to tell.
+    fn lost_before(&mut self, a: &impact_protocol::InputAck, made: Instant, now: Instant) {
+        let unaccepted = |seq: u32| {
+            let back = a.seq.wrapping_sub(seq);
+            seq < a.seq && back <= 64 && (a.accepted_before >> (back - 1)) & 1 == 0
+        };
+        for (seq, sent) in self.outbox.take_pending(|seq, s| unaccepted(seq) && s.carried < made) {
+            self.resend.retain(|i| i.seq != seq);
+            self.stats.inputs_lost += 1;
+            self.answered(seq, sent, Outcome::Lost, now);
+        }
     }
 
     /// The check [`Session::lost_at_welcome`] scheduled, once it is due.
@@ -1091,6 +1139,30 @@ mod tests {
         assert_eq!(s.events().matched, 1, "a tick after the link came back is compared");
     }
 
+    /// A link back after old messages came late and pulled the clock back (a flood after the
+    /// client itself stalled): the ticks lost are still left uncompared, up to the newest tick
+    /// heard run on to the present.
+    #[test]
+    fn a_clock_pulled_back_by_late_messages_does_not_hide_lost_ticks() {
+        use impact_protocol::EventBatch;
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig::new(ClientId(7)));
+        s.receive(welcome(100), t0);
+        let batch = |tick| ServerMessage::Events(EventBatch { tick: Tick(tick), revision: 0, events: vec![] });
+        let confirmed = |tick| ServerMessage::Confirmed(EventBatch { tick: Tick(tick), revision: 0, events: vec![] });
+        s.receive(batch(164), t0 + Duration::from_secs(1));
+        // Two seconds on, messages of tick 170 arrive (held on the client's side): newer than
+        // any before, yet old; the clock follows them back.
+        let t = t0 + Duration::from_secs(3);
+        s.receive(batch(170), t);
+        assert!(s.clock().server_tick(t).is_some_and(|x| x.0 < 180));
+        s.link_restored(t);
+        // The server was at 164 two seconds before: about 292 now. Tick 250 was published
+        // while the link was down.
+        s.receive(confirmed(250), t);
+        assert_eq!((s.events().matched, s.events().unverified), (0, 1));
+    }
+
     /// Joins, probes one at a time, and plays once five answers came: the first lead is the
     /// slowest round trip in ticks plus one, so the first input is stamped ahead.
     #[test]
@@ -1243,6 +1315,33 @@ mod tests {
         assert_eq!(answers[1].outcome, Outcome::Rejected(RejectReason::RateLimited));
         assert_eq!(s.stats().unmatched_answers, 1);
         assert_eq!(s.take_answers().count(), 0, "taken");
+    }
+
+    /// An input every copy of which went before a later input was made, and which that later
+    /// input's ack does not count as accepted, never reached the server: answered `Lost`. One
+    /// carried in the acked input's own message is not (it may have been refused, the refusal
+    /// still on its way).
+    #[test]
+    fn an_input_passed_by_an_acked_one_is_lost() {
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig { redundancy: 1, ..SessionConfig::new(ClientId(7)) });
+        s.receive(welcome(0), t0);
+        let t = t0 + SYNC_TIMEOUT;
+        while s.poll_transmit(t).is_some() {}
+        let a = s.input(walk(), t).unwrap();
+        let b = s.input(walk(), t + Duration::from_millis(10)).unwrap();
+        // `a` rode again in `b`'s message; `c` is made after `a`'s last copy went, and carries `b`.
+        let c = s.input(walk(), t + Duration::from_millis(20)).unwrap();
+        while s.poll_transmit(t + Duration::from_millis(20)).is_some() {}
+        let later = t + Duration::from_millis(100);
+        s.receive(ack(b, 101, 4), later);
+        assert!(s.awaits(a), "a rode in b's message: it may have been refused, not lost");
+        s.receive(ack(c, 102, 4), later);
+        let answers: Vec<Answer> = s.take_answers().collect();
+        let outcome = |seq| answers.iter().find(|x| x.seq == seq).map(|x| x.outcome);
+        assert_eq!(outcome(a), Some(Outcome::Lost), "{answers:?}");
+        assert!(matches!(outcome(b), Some(Outcome::Accepted { .. })));
+        assert_eq!((s.pending_inputs(), s.stats().inputs_lost), (0, 1));
     }
 
     /// A misprediction is put down to another body when one of the avatar's collision events
