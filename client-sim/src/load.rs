@@ -103,51 +103,118 @@ pub struct LoadConfig {
 }
 
 /// Faults injected into a load run: the fault simulation of `tests/tests/faults.rs` (in the
-/// spirit of TigerBeetle's VOPR). [`Faults::from_seed`] draws them from one seed, so a failing
-/// run is reproduced by its seed.
+/// spirit of TigerBeetle's VOPR). [`Faults::from_seed`] and [`Faults::deployment`] draw them from
+/// one seed, so a failing run is reproduced by its seed (as far as real processes over real
+/// Zenoh replay: the schedule is the seed's, the threads' timing is not).
 #[derive(Clone, Debug, Default)]
 pub struct Faults {
     /// Probability that a delivered input is delivered a second time (a retransmission).
     pub duplicate: f64,
-    /// Network partitions between the clients and the server: (start after the load began,
-    /// length). Nothing crosses in either direction during one; what was sent meanwhile is
-    /// delivered after it, in order, as Zenoh over TCP does after a stalled link recovers.
-    pub partitions: Vec<(Duration, Duration)>,
+    /// Network partitions between clients and the server, of every session or one. Nothing
+    /// crosses in either direction during one; what was sent meanwhile is delivered after it, in
+    /// order, as Zenoh over TCP does after a stalled link recovers within its lease.
+    pub partitions: Vec<Window>,
     /// The server's process id, to stall it with SIGSTOP and resume it with SIGCONT.
     pub stall_pid: Option<u32>,
-    /// Server stalls: (start after the load began, length).
-    pub stalls: Vec<(Duration, Duration)>,
+    /// Server stalls.
+    pub stalls: Vec<Window>,
+    /// A session of the load generator closed and opened again (a phone's network handover, a
+    /// player's connection dropping): its clients' presence goes, what they send meanwhile is
+    /// lost, and they come back on a new Zenoh session, to the avatar they had if within the
+    /// server's grace period. Never the first session (it carries the world's stats).
+    pub drops: Vec<Window>,
 }
+
+/// When a fault holds: from `start` after the load began, for `len`, on one of the load
+/// generator's Zenoh sessions (the clients on it) or on all of them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Window {
+    /// After the load began.
+    pub start: Duration,
+    /// How long.
+    pub len: Duration,
+    /// The session (`None`: every one).
+    pub session: Option<usize>,
+}
+
+impl Window {
+    /// Holds at `since` (after the load began) on `session`.
+    fn holds(&self, session: usize, since: Duration) -> bool {
+        self.session.is_none_or(|s| s == session) && since >= self.start && since < self.start + self.len
+    }
+}
+
+/// The server's grace period for a client whose presence went (PROTOCOL.md, "Presence"): 128
+/// ticks at 64 Hz. A client back well within it keeps its avatar.
+pub const GRACE: Duration = Duration::from_secs(2);
 
 impl Faults {
     /// Faults for a run of `duration` drawn from `seed`: up to 10 % duplicated inputs, one or
     /// two partitions of 0.1 to 1.5 s, and (with `stall_pid`) one or two stalls of 0.1 to 1 s.
     pub fn from_seed(seed: u64, duration: Duration, stall_pid: Option<u32>) -> Faults {
         let mut rng = Rng::new(seed ^ 0x5eed_fa17);
-        let d = duration.as_secs_f64();
-        let mut windows = |n: usize, max_len: f64| -> Vec<(Duration, Duration)> {
-            (0..n)
-                .map(|_| {
-                    let len = 0.1 + rng.unit() * (max_len - 0.1);
-                    let start = rng.unit() * (d - len).max(0.0);
-                    (Duration::from_secs_f64(start), Duration::from_secs_f64(len))
-                })
-                .collect()
+        let partitions = windows(&mut rng, 1 + (seed % 2) as usize, 0.1, 1.5, duration, None);
+        let stalls = match stall_pid {
+            Some(_) => windows(&mut rng, 1 + (seed / 2 % 2) as usize, 0.1, 1.0, duration, None),
+            None => Vec::new(),
         };
-        let partitions = windows(1 + (seed % 2) as usize, 1.5);
-        let stalls = if stall_pid.is_some() { windows(1 + (seed / 2 % 2) as usize, 1.0) } else { Vec::new() };
         let duplicate = Rng::new(seed).unit() * 0.1;
-        Faults { duplicate, partitions, stall_pid, stalls }
+        Faults { duplicate, partitions, stall_pid, stalls, drops: Vec::new() }
     }
 
-    /// When the partition holding at `since_start` ends, if one does.
-    fn partition_end(&self, since_start: Duration) -> Option<Duration> {
-        self.partitions.iter().find(|&&(a, len)| since_start >= a && since_start < a + len).map(|&(a, len)| a + len)
+    /// Faults for a deployment's run of `duration` over `sessions` sessions (at least 3), drawn
+    /// from `seed`: up to 5 % duplicated inputs; one partition of every session (0.1 to 1 s) and
+    /// one or two of a single session's clients (0.2 to 4 s: shorter and longer than the grace
+    /// period, shorter than a lease); two sessions dropped, one for 0.3 to 1.5 s (back within
+    /// the 2 s grace period) and another for 2.6 to 4 s (back past it); and (with `stall_pid`)
+    /// a stall of 0.1 to 1 s, shorter than the server's 1.5 s lease. Everything ends a second
+    /// before the load does, so what it left is answered while the load still runs.
+    pub fn deployment(seed: u64, duration: Duration, sessions: usize, stall_pid: Option<u32>) -> Faults {
+        let mut rng = Rng::new(seed ^ 0x0de9_10e5);
+        let within = duration.saturating_sub(Duration::from_secs(1));
+        let others = sessions.max(2) - 1;
+        let one = |rng: &mut Rng| Some(1 + ((rng.unit() * others as f64) as usize).min(others - 1));
+        let mut partitions = windows(&mut rng, 1, 0.1, 1.0, within, None);
+        for _ in 0..1 + seed % 2 {
+            let s = one(&mut rng);
+            partitions.extend(windows(&mut rng, 1, 0.2, 4.0, within, s));
+        }
+        let short = one(&mut rng);
+        let long = short.map(|s| 1 + s % others);
+        let mut drops = windows(&mut rng, 1, 0.3, 1.5, within, short);
+        drops.extend(windows(&mut rng, 1, 2.6, 4.0, within, long));
+        let stalls = match stall_pid {
+            Some(_) => windows(&mut rng, 1, 0.1, 1.0, within, None),
+            None => Vec::new(),
+        };
+        Faults { duplicate: rng.unit() * 0.05, partitions, stall_pid, stalls, drops }
+    }
+
+    /// When the partition holding at `since_start` on `session` ends, if one does.
+    fn partition_end(&self, session: usize, since_start: Duration) -> Option<Duration> {
+        self.partitions.iter().filter(|w| w.holds(session, since_start)).map(|w| w.start + w.len).max()
     }
 
     fn stalled(&self, since_start: Duration) -> bool {
-        self.stalls.iter().any(|&(a, len)| since_start >= a && since_start < a + len)
+        self.stalls.iter().any(|w| w.holds(0, since_start))
     }
+
+    /// Whether `session` is dropped at `since_start`.
+    fn dropped(&self, session: usize, since_start: Duration) -> bool {
+        self.drops.iter().any(|w| w.holds(session, since_start))
+    }
+}
+
+/// `n` windows of `min_s` to `max_s` seconds each, inside `within`, on `session`.
+fn windows(rng: &mut Rng, n: usize, min_s: f64, max_s: f64, within: Duration, session: Option<usize>) -> Vec<Window> {
+    let d = within.as_secs_f64();
+    (0..n)
+        .map(|_| {
+            let len = min_s + rng.unit() * (max_s - min_s);
+            let start = rng.unit() * (d - len).max(0.0);
+            Window { start: Duration::from_secs_f64(start), len: Duration::from_secs_f64(len), session }
+        })
+        .collect()
 }
 
 /// Stops or resumes a process (SIGSTOP / SIGCONT) with `kill`, so nothing unsafe is needed here.
@@ -189,6 +256,33 @@ struct Client {
     /// the same after.
     early: (u64, u64),
     steady: (u64, u64),
+    /// Each confirmed batch it received, by tick (a digest of its events): a second batch of a
+    /// tick must say the same. The last [`CONFIRMED_KEPT`] ticks.
+    confirmed: BTreeMap<u32, u64>,
+    /// Its session was dropped: when.
+    left: Option<Instant>,
+    /// Its returns after a dropped session, the latest last.
+    returns: Vec<Return>,
+}
+
+/// Confirmed batches a client keeps the digest of, to see one change.
+const CONFIRMED_KEPT: u32 = 2048;
+
+/// A client back after its session was dropped: what the invariants ask of it.
+#[derive(Clone, Copy, Debug)]
+struct Return {
+    /// When its new session opened.
+    at: Instant,
+    /// How long it was gone.
+    away: Duration,
+    /// The avatar it had when it left.
+    avatar: Option<EntityId>,
+    /// Welcomed again, and whether to the avatar it had.
+    welcomed: Option<bool>,
+    /// A full state frame came after it returned.
+    full_frame: bool,
+    /// An input it sent after it returned was accepted.
+    resumed: bool,
 }
 
 /// Inputs sent this long after play began are "early": the clock has only the sync's estimate.
@@ -235,6 +329,13 @@ impl Client {
         self.delivered = self.delivered.max(seqs.iter().copied().max().unwrap_or(0));
         new
     }
+}
+
+/// A confirmed batch's events, digested (FNV-1a over their JSON) to see a second batch of a
+/// tick differ.
+fn digest(events: &[impact_protocol::CollisionEvent]) -> u64 {
+    let bytes = serde_json::to_vec(events).unwrap_or_default();
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ u64::from(*b)).wrapping_mul(0x0100_0000_01b3))
 }
 
 /// The seqs a message carries.
@@ -306,21 +407,27 @@ fn fight(s: &Session, me: EntityId, now: Instant, rng: &mut Rng) -> Option<Actio
 
 /// The sessions the clients share, or with `users` one per client, authenticated as its user.
 fn open_sessions(cfg: &LoadConfig) -> anyhow::Result<Vec<zenoh::Session>> {
-    let file = cfg.zenoh_config.as_deref();
-    let Some(users) = &cfg.users else {
-        return (0..cfg.sessions.max(1)).map(|_| crate::net::open(&cfg.connect, file, None, cfg.mode)).collect();
-    };
-    let mut sessions = Vec::with_capacity(cfg.clients as usize);
-    for k in 0..cfg.clients {
-        let id = cfg.first_client + k;
-        let u = users.for_client(id).ok_or_else(|| anyhow::anyhow!("the users file has no user for client {id}"))?;
-        let creds = crate::net::Credentials { user: u.name.clone(), password: u.password.clone() };
-        sessions.push(crate::net::open(&cfg.connect, file, Some(&creds), cfg.mode)?);
-        if cfg.progress && (k + 1) % 100 == 0 {
+    let n = if cfg.users.is_some() { cfg.clients } else { cfg.sessions.max(1) };
+    let mut sessions = Vec::with_capacity(n as usize);
+    for k in 0..n as usize {
+        sessions.push(open_session(cfg, k)?);
+        if cfg.users.is_some() && cfg.progress && (k + 1) % 100 == 0 {
             eprintln!("  {} of {} sessions authenticated", k + 1, cfg.clients);
         }
     }
     Ok(sessions)
+}
+
+/// Session `k` of [`open_sessions`]: with `users`, client `k`'s, authenticated as its user.
+fn open_session(cfg: &LoadConfig, k: usize) -> anyhow::Result<zenoh::Session> {
+    let file = cfg.zenoh_config.as_deref();
+    let Some(users) = &cfg.users else {
+        return crate::net::open(&cfg.connect, file, None, cfg.mode);
+    };
+    let id = cfg.first_client + k as u32;
+    let u = users.for_client(id).ok_or_else(|| anyhow::anyhow!("the users file has no user for client {id}"))?;
+    let creds = crate::net::Credentials { user: u.name.clone(), password: u.password.clone() };
+    crate::net::open(&cfg.connect, file, Some(&creds), cfg.mode)
 }
 
 /// Messages the callbacks queue for the run loop: at most this many (past it they are dropped and
@@ -350,6 +457,11 @@ struct Wiring {
     tokens: Vec<zenoh::liveliness::LivelinessToken>,
     /// One more for each world the clients moved to.
     generation: u32,
+    /// Sessions closed by the fault `drops`.
+    closed: Vec<bool>,
+    /// Sessions being opened again, each on a thread of its own (opening waits for a router
+    /// that is down, and the clients on the other sessions play on meanwhile).
+    opening: Vec<Option<std::thread::JoinHandle<anyhow::Result<zenoh::Session>>>>,
 }
 
 impl Wiring {
@@ -367,7 +479,11 @@ impl Wiring {
             inputs: Vec::new(),
             tokens: Vec::new(),
             generation: 0,
+            closed: Vec::new(),
+            opening: Vec::new(),
         };
+        w.closed = vec![false; w.sessions.len()];
+        w.opening = (0..w.sessions.len()).map(|_| None).collect();
         w.subscribe(cfg, &cfg.world, clients)?;
         Ok(w)
     }
@@ -381,13 +497,7 @@ impl Wiring {
         self.inputs = clients
             .iter()
             .enumerate()
-            .map(|(k, c)| {
-                self.session(k)
-                    .declare_publisher(keys::INPUT.key(world, Some(c.id)))
-                    .encoding(cfg.encoding.zenoh_tag())
-                    .wait()
-                    .map_err(|e| anyhow::anyhow!("declaring an input publisher: {e}"))
-            })
+            .map(|(k, c)| self.input_publisher(cfg, world, k, c))
             .collect::<anyhow::Result<_>>()?;
         let (inbox, generation) = (self.inbox.clone(), self.generation);
         let stats = self.sessions[0]
@@ -419,7 +529,73 @@ impl Wiring {
 
     /// The session client `k` shares.
     fn session(&self, k: usize) -> &zenoh::Session {
-        &self.sessions[k % self.sessions.len()]
+        &self.sessions[self.session_of(k)]
+    }
+
+    /// Which session client `k` shares.
+    fn session_of(&self, k: usize) -> usize {
+        k % self.sessions.len()
+    }
+
+    fn input_publisher(
+        &self,
+        cfg: &LoadConfig,
+        world: &WorldId,
+        k: usize,
+        c: &Client,
+    ) -> anyhow::Result<zenoh::pubsub::Publisher<'static>> {
+        self.session(k)
+            .declare_publisher(keys::INPUT.key(world, Some(c.id)))
+            .encoding(cfg.encoding.zenoh_tag())
+            .wait()
+            .map_err(|e| anyhow::anyhow!("declaring an input publisher: {e}"))
+    }
+
+    /// The fault `drops`: session `s` closes, and its clients' presence, subscriptions and
+    /// publishers with it.
+    fn close_session(&mut self, s: usize) {
+        let _ = self.sessions[s].close().wait();
+        self.closed[s] = true;
+    }
+
+    /// Session `s` opens again, a new Zenoh session (as a game's transport after a handover),
+    /// and each of its clients subscribes and declares its presence on it in `world`. Opening
+    /// runs on a thread: true once the session is open and wired, false while it is not yet (or
+    /// opening failed, to be tried again).
+    fn reopen_session(
+        &mut self,
+        cfg: &LoadConfig,
+        world: &WorldId,
+        s: usize,
+        clients: &[Client],
+    ) -> anyhow::Result<bool> {
+        let Some(opening) = self.opening[s].take() else {
+            let cfg = cfg.clone();
+            self.opening[s] = Some(std::thread::spawn(move || open_session(&cfg, s)));
+            return Ok(false);
+        };
+        if !opening.is_finished() {
+            self.opening[s] = Some(opening);
+            return Ok(false);
+        }
+        match opening.join() {
+            Ok(Ok(session)) => self.sessions[s] = session,
+            // Tried again on the next call.
+            Ok(Err(_)) | Err(_) => return Ok(false),
+        }
+        let n = self.sessions.len();
+        for (k, c) in clients.iter().enumerate().filter(|(k, _)| k % n == s) {
+            self.subscribe_client(cfg, world, k, c)?;
+            self.inputs[k] = self.input_publisher(cfg, world, k, c)?;
+            self.tokens[k] = self
+                .session(k)
+                .liveliness()
+                .declare_token(keys::PRESENCE.key(world, Some(c.id)))
+                .wait()
+                .map_err(|e| anyhow::anyhow!("presence token: {e}"))?;
+        }
+        self.closed[s] = false;
+        Ok(true)
     }
 
     fn subscribe_client(&mut self, cfg: &LoadConfig, world: &WorldId, k: usize, c: &Client) -> anyhow::Result<()> {
@@ -527,6 +703,9 @@ struct Received {
     inbox_dropped: u64,
 }
 
+/// A message on its way to the server: the client's index, the seqs it carries, its bytes.
+type Outgoing = (usize, Vec<u32>, Vec<u8>);
+
 /// The run loop's state: the clients, both delay lines, and the figures gathered.
 struct Run<'a> {
     cfg: &'a LoadConfig,
@@ -534,8 +713,9 @@ struct Run<'a> {
     walk_mps: Option<f64>,
     clients: Vec<Client>,
     rng: Rng,
-    up: DelayLine<(usize, Vec<u32>, Vec<u8>)>,
-    down: DelayLine<Inbound>,
+    /// A delay line each way per Zenoh session (a partition may cut one session's clients).
+    up: Vec<DelayLine<Outgoing>>,
+    down: Vec<DelayLine<Inbound>>,
     /// Input round trips, microseconds.
     latency: Histogram<u64>,
     /// How many ticks back each correction reached.
@@ -601,6 +781,9 @@ fn clients(cfg: &LoadConfig, start: Instant) -> anyhow::Result<Vec<Client>> {
             margins: Margins::default(),
             early: (0, 0),
             steady: (0, 0),
+            confirmed: BTreeMap::new(),
+            left: None,
+            returns: Vec::new(),
         });
     }
     Ok(out)
@@ -682,7 +865,8 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
         }
         if now.duration_since(links_checked) >= Duration::from_millis(10) {
             links_checked = now;
-            for (k, s) in wiring.sessions.iter().enumerate() {
+            run.drops(&mut wiring, &mut linked, now)?;
+            for (k, s) in wiring.sessions.iter().enumerate().filter(|(k, _)| !wiring.closed[*k]) {
                 let up = impact_client::transport::reachable(s);
                 if up && !linked[k] {
                     run.link_restored(k, wiring.sessions.len(), now);
@@ -728,6 +912,42 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
 }
 
 impl Run<'_> {
+    /// The fault `drops`: a session whose drop began closes, one whose drop ended opens again
+    /// (its clients then count as returned; the link watch tells them their link is back).
+    fn drops(&mut self, wiring: &mut Wiring, linked: &mut [bool], now: Instant) -> anyhow::Result<()> {
+        let since = now.saturating_duration_since(self.load_start);
+        for (s, link) in linked.iter_mut().enumerate() {
+            let want = self.cfg.faults.dropped(s, since);
+            if want && !wiring.closed[s] {
+                wiring.close_session(s);
+                *link = false;
+                self.r.session_drops += 1;
+                for k in (0..self.clients.len()).filter(|k| wiring.session_of(*k) == s) {
+                    self.clients[k].left = Some(now);
+                }
+            } else if !want && wiring.closed[s] {
+                if !wiring.reopen_session(self.cfg, &self.world, s, &self.clients)? {
+                    continue;
+                }
+                let at = Instant::now();
+                for k in (0..self.clients.len()).filter(|k| wiring.session_of(*k) == s) {
+                    let c = &mut self.clients[k];
+                    let Some(left) = c.left.take() else { continue };
+                    let back = Return {
+                        at,
+                        away: at - left,
+                        avatar: c.session.avatar(),
+                        welcomed: None,
+                        full_frame: false,
+                        resumed: false,
+                    };
+                    c.returns.push(back);
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Zenoh session `session` (of `sessions`) has its link back: each of its clients is told.
     fn link_restored(&mut self, session: usize, sessions: usize, now: Instant) {
         self.r.links_restored += 1;
@@ -747,8 +967,8 @@ impl Run<'_> {
             retired: Vec::new(),
             clients,
             rng: Rng::new(cfg.seed),
-            up: DelayLine::new(1 << 20),
-            down: DelayLine::new(1 << 21),
+            up: (0..sessions).map(|_| DelayLine::new(1 << 20)).collect(),
+            down: (0..sessions).map(|_| DelayLine::new(1 << 21)).collect(),
             latency: Histogram::new_with_bounds(1, 60_000_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?,
             depth: Histogram::new_with_bounds(1, 100_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?,
             server_ticks: Histogram::new_with_bounds(1, 3_600_000_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?,
@@ -776,19 +996,26 @@ impl Run<'_> {
         let arrived = std::mem::take(&mut *wiring.inbox.lock().unwrap_or_else(|e| e.into_inner()));
         for (at, generation, m) in arrived {
             if generation == wiring.generation {
-                self.down.send(at, &self.cfg.downlink, &mut self.rng, m);
+                let line = match &m {
+                    Inbound::Msg(k, ..) | Inbound::Malformed(k) => wiring.session_of(*k),
+                    Inbound::Stats(_) => 0,
+                };
+                self.down[line].send(at, &self.cfg.downlink, &mut self.rng, m);
             }
         }
-        if let Some(end) = self.cfg.faults.partition_end(now.saturating_duration_since(self.load_start)) {
-            // Nothing crosses either way until it ends; what was sent meanwhile comes after.
-            self.down.stall_until(self.load_start + end);
-            self.up.stall_until(self.load_start + end);
-        }
-        while let Some(m) = self.down.pop_due(now) {
-            match m {
-                Inbound::Stats(s) => self.on_stats(s, now),
-                Inbound::Msg(k, msg, epoch) => self.on_message(k, msg, epoch, now),
-                Inbound::Malformed(k) => self.clients[k].session.malformed(),
+        let since = now.saturating_duration_since(self.load_start);
+        for line in 0..self.down.len() {
+            if let Some(end) = self.cfg.faults.partition_end(line, since) {
+                // Nothing crosses either way until it ends; what was sent meanwhile comes after.
+                self.down[line].stall_until(self.load_start + end);
+                self.up[line].stall_until(self.load_start + end);
+            }
+            while let Some(m) = self.down[line].pop_due(now) {
+                match m {
+                    Inbound::Stats(s) => self.on_stats(s, now),
+                    Inbound::Msg(k, msg, epoch) => self.on_message(k, msg, epoch, now),
+                    Inbound::Malformed(k) => self.clients[k].session.malformed(),
+                }
             }
         }
     }
@@ -823,6 +1050,9 @@ impl Run<'_> {
         }
         match &msg {
             ServerMessage::Welcome(w) if w.client == c.id => {
+                if let Some(back) = c.returns.last_mut().filter(|b| b.welcomed.is_none()) {
+                    back.welcomed = Some(w.avatar.is_some() && w.avatar == back.avatar);
+                }
                 // Welcomed again (a reconnect, a takeover): the seqs below next_seq were
                 // accepted, their acks lost with the old link.
                 let told: Vec<u32> = c.owed.range(..w.next_seq).map(|(seq, _)| *seq).collect();
@@ -859,6 +1089,25 @@ impl Run<'_> {
                 r.answers_unexpected += u64::from(!expected);
                 *r.rejects.entry(j.reason.name().to_string()).or_insert(0) += 1;
             }
+            ServerMessage::Confirmed(b) => {
+                // Nothing a client saw confirmed changes: a second batch of a tick (which the
+                // protocol never sends) must at least say the same.
+                let digest = digest(&b.events);
+                match c.confirmed.insert(b.tick.0, digest) {
+                    Some(d) if d != digest => r.confirmed_changed += 1,
+                    Some(_) => r.confirmed_repeated += 1,
+                    None => {}
+                }
+                let keep = b.tick.0.saturating_sub(CONFIRMED_KEPT);
+                while c.confirmed.first_key_value().is_some_and(|(t, _)| *t < keep) {
+                    c.confirmed.pop_first();
+                }
+            }
+            ServerMessage::State(f) if f.full => {
+                if let Some(back) = c.returns.last_mut() {
+                    back.full_frame = true;
+                }
+            }
             ServerMessage::Corrections(cb) => {
                 if let Some(t) = c.session.clock().server_tick(now) {
                     let _ = self.depth.record(u64::from(t.0.saturating_sub(cb.tick.0)).max(1));
@@ -879,6 +1128,7 @@ impl Run<'_> {
     fn play(&mut self, now: Instant) {
         let cfg = self.cfg;
         let clients = self.clients.len().max(1) as f64;
+        let lines = self.up.len();
         let t = now.saturating_duration_since(self.load_start).as_secs_f64();
         for (k, c) in self.clients.iter_mut().enumerate() {
             let s = &mut c.session;
@@ -925,6 +1175,9 @@ impl Run<'_> {
                 let _ = self.latency.record(a.round_trip.as_micros().max(1) as u64);
                 let Outcome::Accepted { margin_ticks, .. } = a.outcome else { continue };
                 self.r.acks += 1;
+                if let Some(back) = c.returns.last_mut().filter(|b| a.sent >= b.at) {
+                    back.resumed = true;
+                }
                 c.margins.record(margin_ticks);
                 let early = c.playing_since.is_some_and(|p| a.sent.saturating_duration_since(p) < EARLY);
                 let share = if early { &mut c.early } else { &mut c.steady };
@@ -935,9 +1188,10 @@ impl Run<'_> {
                 let Ok(bytes) = impact_protocol::encode(&msg, cfg.encoding) else { continue };
                 let seqs = seqs(&msg);
                 let twice = !seqs.is_empty() && self.rng.unit() < cfg.faults.duplicate;
-                if self.up.send(now, &cfg.uplink, &mut self.rng, (k, seqs.clone(), bytes.clone()))
+                let up = &mut self.up[k % lines];
+                if up.send(now, &cfg.uplink, &mut self.rng, (k, seqs.clone(), bytes.clone()))
                     && twice
-                    && self.up.send(now, &Link { loss: 0.0, ..cfg.uplink }, &mut self.rng, (k, seqs, bytes))
+                    && up.send(now, &Link { loss: 0.0, ..cfg.uplink }, &mut self.rng, (k, seqs, bytes))
                 {
                     self.r.inputs_duplicated += 1;
                 }
@@ -986,12 +1240,15 @@ impl Run<'_> {
                 self.r.server_stalls += u64::from(want);
             }
         }
-        while let Some((k, seqs, bytes)) = self.up.pop_due(now) {
-            if now < self.load_end {
-                self.up_bytes += bytes.len() as u64;
-            }
-            if wiring.inputs[k].put(bytes).wait().is_ok() {
-                self.r.inputs_delivered += self.clients[k].delivered(&seqs);
+        for (line, up) in self.up.iter_mut().enumerate() {
+            while let Some((k, seqs, bytes)) = up.pop_due(now) {
+                if now < self.load_end {
+                    self.up_bytes += bytes.len() as u64;
+                }
+                // A closed session sends nothing: what its clients sent meanwhile is gone.
+                if !wiring.closed[line] && wiring.inputs[k].put(bytes).wait().is_ok() {
+                    self.r.inputs_delivered += self.clients[k].delivered(&seqs);
+                }
             }
         }
     }
@@ -1016,8 +1273,8 @@ impl Run<'_> {
             let old = std::mem::replace(&mut c.session, new_session(cfg, c.id));
             self.retired.push((c.game, old));
         }
-        self.up = DelayLine::new(1 << 20);
-        self.down = DelayLine::new(1 << 21);
+        self.up = (0..self.up.len()).map(|_| DelayLine::new(1 << 20)).collect();
+        self.down = (0..self.down.len()).map(|_| DelayLine::new(1 << 21)).collect();
         self.checks.clear();
         let rules = scene_rules(cfg, &next, &wiring.sessions[0], &self.clients)?;
         predict(rules.as_ref(), &mut self.clients)?;
@@ -1063,7 +1320,7 @@ impl Run<'_> {
         let (latency, depth, server_ticks, clients) = (&self.latency, &self.depth, &self.server_ticks, &self.clients);
         let secs = cfg.duration.as_secs_f64().max(1e-9);
         r.inputs_lost_in_network = r.inputs_sent.saturating_sub(r.inputs_delivered);
-        r.messages_lost_in_network = self.up.lost;
+        r.messages_lost_in_network = self.up.iter().map(|l| l.lost).sum();
         r.inputs_unanswered = clients.iter().map(|c| c.owed.values().map(|&n| u64::from(n)).sum::<u64>()).sum();
         // Unanswered counts deliveries (a rejected input owes an answer per copy); this counts
         // inputs: those the clients still await an answer for, after the settle.
@@ -1132,6 +1389,16 @@ impl Run<'_> {
         r.views_matched = self.sessions().map(|s| s.events().matched).sum();
         r.views_mismatched = self.sessions().map(|s| s.events().mismatched).sum();
         r.views_unverified = self.sessions().map(|s| s.events().unverified).sum();
+        for (c, back) in clients.iter().flat_map(|c| c.returns.iter().map(move |b| (c, b))) {
+            let in_grace = back.away + Duration::from_millis(250) < GRACE;
+            r.returns += 1;
+            r.returns_welcomed += u64::from(back.welcomed.is_some());
+            r.returns_in_grace += u64::from(in_grace);
+            r.returns_kept_avatar += u64::from(in_grace && back.welcomed == Some(true));
+            r.returns_drawing += u64::from(c.game);
+            r.returns_full_frame += u64::from(c.game && back.full_frame);
+            r.returns_resumed += u64::from(back.resumed);
+        }
         let retired = self.retired.iter().filter(|r| r.0).map(|r| &r.1);
         r.prediction =
             crate::report::Prediction::over(clients.iter().filter(|c| c.game).map(|c| &c.session).chain(retired));

@@ -65,6 +65,27 @@ pub struct Report {
     /// Confirmed ticks not compared with a client's view, because its link was lost before them
     /// (what the server published meanwhile never arrived).
     pub views_unverified: u64,
+    /// Sessions of the load generator closed and opened again by the fault injection.
+    pub session_drops: u64,
+    /// Clients back on a new session after theirs was dropped.
+    pub returns: u64,
+    /// Of them, welcomed again.
+    pub returns_welcomed: u64,
+    /// Of them, back well within the server's grace period (a quarter second inside it).
+    pub returns_in_grace: u64,
+    /// Of those, welcomed to the avatar they had.
+    pub returns_kept_avatar: u64,
+    /// Returns of game clients (they read their state stream).
+    pub returns_drawing: u64,
+    /// Of them, given a full state frame after they came back.
+    pub returns_full_frame: u64,
+    /// Returns after which an input the client sent was accepted: it resumed its sequence.
+    pub returns_resumed: u64,
+    /// Confirmed batches of a tick a client already held that said something else. Should be 0:
+    /// nothing a client saw confirmed changes.
+    pub confirmed_changed: u64,
+    /// Confirmed batches of a tick a client already held, the same.
+    pub confirmed_repeated: u64,
     /// Times the server process was stalled (SIGSTOP) by the fault injection.
     pub server_stalls: u64,
     /// Input to ack latency, ms: median (round trip through the simulated network and the tick).
@@ -292,6 +313,28 @@ impl Report {
                 "  resumed  {} inputs known lost at a reconnect (never reached the server), {} told accepted by a \
                  welcome; of the unanswered deliveries, {} inputs still awaited",
                 self.inputs_known_lost, self.accepted_by_welcome, self.inputs_awaited
+            )?;
+        }
+        if self.session_drops > 0 {
+            writeln!(
+                f,
+                "  returns  {} sessions dropped; {} clients back, {} welcomed again, {} within the grace period \
+                 ({} kept their avatar), {} resumed their inputs, {} of {} drawing given a full frame",
+                self.session_drops,
+                self.returns,
+                self.returns_welcomed,
+                self.returns_in_grace,
+                self.returns_kept_avatar,
+                self.returns_resumed,
+                self.returns_full_frame,
+                self.returns_drawing
+            )?;
+        }
+        if self.confirmed_changed + self.confirmed_repeated > 0 {
+            writeln!(
+                f,
+                "  confirmed {} batches of a tick already held said something else, {} said the same",
+                self.confirmed_changed, self.confirmed_repeated
             )?;
         }
         if self.stale_owner > 0 {
