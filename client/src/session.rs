@@ -905,7 +905,13 @@ impl Session {
             let back = a.seq.wrapping_sub(seq);
             seq < a.seq && back <= 64 && (a.accepted_before >> (back - 1)) & 1 == 0
         };
-        for (seq, sent) in self.outbox.take_pending(|seq, s| unaccepted(seq) && s.carried < made) {
+        self.answer_lost(|seq, s| unaccepted(seq) && s.carried < made, now);
+    }
+
+    /// Every input awaiting an answer that `lost` says never reached the server is answered
+    /// [`Outcome::Lost`].
+    fn answer_lost(&mut self, lost: impl FnMut(u32, &Sent) -> bool, now: Instant) {
+        for (seq, sent) in self.outbox.take_pending(lost) {
             self.resend.retain(|i| i.seq != seq);
             self.stats.inputs_lost += 1;
             self.answered(seq, sent, Outcome::Lost, now);
@@ -916,12 +922,7 @@ impl Session {
     fn check_lost(&mut self, now: Instant) {
         let Some(c) = self.lost_check.filter(|c| now >= c.due) else { return };
         self.lost_check = None;
-        let lost = |seq: u32, s: &Sent| seq >= c.next_seq && s.carried < c.welcomed;
-        for (seq, sent) in self.outbox.take_pending(lost) {
-            self.resend.retain(|i| i.seq != seq);
-            self.stats.inputs_lost += 1;
-            self.answered(seq, sent, Outcome::Lost, now);
-        }
+        self.answer_lost(|seq: u32, s: &Sent| seq >= c.next_seq && s.carried < c.welcomed, now);
     }
 
     /// Ends the sync: the soonest answer anchors the clock, the slowest round trip (in ticks,
