@@ -322,11 +322,11 @@ impl Client {
             if !self.acked.contains(&seq) {
                 *self.owed.entry(seq).or_insert(0) += 1;
             }
-            if seq > self.delivered {
+            if impact_protocol::serial::precedes(self.delivered, seq) {
                 new += 1;
             }
         }
-        self.delivered = self.delivered.max(seqs.iter().copied().max().unwrap_or(0));
+        self.delivered = seqs.iter().fold(self.delivered, |d, &s| impact_protocol::serial::later(d, s));
         new
     }
 }
@@ -1055,7 +1055,8 @@ impl Run<'_> {
                 }
                 // Welcomed again (a reconnect, a takeover): the seqs below next_seq were
                 // accepted, their acks lost with the old link.
-                let told: Vec<u32> = c.owed.range(..w.next_seq).map(|(seq, _)| *seq).collect();
+                let told: Vec<u32> =
+                    c.owed.keys().copied().filter(|&seq| impact_protocol::serial::precedes(seq, w.next_seq)).collect();
                 for seq in told {
                     c.accepted(seq);
                     r.accepted_by_welcome += 1;

@@ -35,6 +35,7 @@
 //! [`RemoteConfig::max_bodies`] bodies (more are counted and not shown) and
 //! [`RemoteConfig::history`] samples each. Nothing a server or network sends panics it.
 
+use impact_protocol::serial::precedes;
 use impact_protocol::{BodyInfo, BodyMotion, EntityId, StateFrame, Tick};
 use std::collections::{BTreeMap, VecDeque};
 
@@ -207,7 +208,7 @@ impl RemoteWorld {
         if !frame.full {
             match self.expected {
                 Some(n) if frame.frame == n => {}
-                Some(n) if frame.frame < n => {
+                Some(n) if precedes(frame.frame, n) => {
                     self.stats.ignored += 1;
                     return Applied::Stale;
                 }
@@ -223,7 +224,7 @@ impl RemoteWorld {
                 }
             }
         } else {
-            if self.expected.is_some_and(|n| frame.frame < n) {
+            if self.expected.is_some_and(|n| precedes(frame.frame, n)) {
                 self.stats.ignored += 1;
                 return Applied::Stale;
             }
@@ -531,6 +532,22 @@ mod tests {
         w.apply(&frame(10, 18, true, &[(1, [0.0, 0.0, 0.0], [0.0; 3])]));
         assert_eq!((w.len(), w.stats().gaps, w.stats().full_frames), (1, 1, 2));
         assert!(w.info(EntityId(2)).is_none());
+    }
+
+    /// Frame numbers go on past `u32::MAX` at 0: the deltas across the wrap apply, a repeat of
+    /// one before it is stale (not a gap that would ask for a full frame).
+    #[test]
+    fn frames_go_on_across_the_wrap() {
+        let mut w = RemoteWorld::new(RemoteConfig::new(HZ));
+        w.apply(&frame(u32::MAX - 1, 10, true, &[(1, [0.0; 3], [1.0, 0.0, 0.0])]));
+        for (n, tick) in [(u32::MAX, 11), (0, 12), (1, 13)] {
+            assert_eq!(w.apply(&frame(n, tick, false, &[])), Applied::Applied, "frame {n}");
+        }
+        assert_eq!(w.apply(&frame(u32::MAX, 11, false, &[])), Applied::Stale);
+        assert_eq!(w.apply(&frame(u32::MAX - 1, 10, true, &[])), Applied::Stale, "an older full frame");
+        assert_eq!(w.apply(&frame(2, 14, false, &[(1, [4.0, 0.0, 0.0], [1.0, 0.0, 0.0])])), Applied::Applied);
+        assert!(!w.needs_full_frame() && w.stats().gaps == 0);
+        assert!((x_at(&w, 1, 14.0) - 4.0).abs() < 1e-12);
     }
 
     /// Bounds: bodies past `max_bodies` are counted and not shown; samples per body are capped;

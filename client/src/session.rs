@@ -33,6 +33,7 @@ use crate::predict::{PredictConfig, PredictError, Predictor, Reconciled};
 use crate::remote::{DrawnBody, RemoteConfig, RemoteWorld};
 use impact_core::scene::SceneRules;
 use impact_protocol::limits::{MAX_ACTIONS_PER_INPUT, MAX_INPUTS_PER_MESSAGE};
+use impact_protocol::serial::precedes;
 use impact_protocol::{
     Action, ClientId, ClientInput, ClientMessage, CollisionEvent, CorrectionBatch, EntityId, Epoch, FullFrameRequest,
     InputBatch, RayResult, RejectReason, SceneDescription, ServerMessage, Tick, TimePing, Welcome, WorldClosed,
@@ -103,7 +104,7 @@ pub struct Answer {
 /// The seqs an ack of `seq` says were accepted before it (`InputAck::accepted_before`), nearest
 /// first.
 pub fn accepted_before(seq: u32, bits: u64) -> impl Iterator<Item = u32> {
-    (0..64u32).filter(move |k| bits & (1 << k) != 0).filter_map(move |k| seq.checked_sub(k + 1))
+    (0..64u32).filter(move |k| bits & (1 << k) != 0).map(move |k| seq.wrapping_sub(k + 1)).filter(|&s| s != 0)
 }
 
 /// See [`Session::lost_at_welcome`].
@@ -865,8 +866,9 @@ impl Session {
         }
         // Seqs below the server's next_seq were accepted (their acks were lost with the old
         // connection): nothing to resend. Ours go on from wherever is further.
-        self.resend.retain(|i| i.seq >= w.next_seq);
         self.outbox.resume_from(w.next_seq);
+        let outbox = &self.outbox;
+        self.resend.retain(|i| outbox.awaits(i.seq));
         if self.stats.welcomes > 1 {
             self.lost_at_welcome(&w, now);
         }
@@ -903,7 +905,7 @@ impl Session {
     fn lost_before(&mut self, a: &impact_protocol::InputAck, made: Instant, now: Instant) {
         let unaccepted = |seq: u32| {
             let back = a.seq.wrapping_sub(seq);
-            seq < a.seq && back <= 64 && (a.accepted_before >> (back - 1)) & 1 == 0
+            precedes(seq, a.seq) && back <= 64 && (a.accepted_before >> (back - 1)) & 1 == 0
         };
         self.answer_lost(|seq, s| unaccepted(seq) && s.carried < made, now);
     }
@@ -922,7 +924,7 @@ impl Session {
     fn check_lost(&mut self, now: Instant) {
         let Some(c) = self.lost_check.filter(|c| now >= c.due) else { return };
         self.lost_check = None;
-        self.answer_lost(|seq: u32, s: &Sent| seq >= c.next_seq && s.carried < c.welcomed, now);
+        self.answer_lost(|seq: u32, s: &Sent| !precedes(seq, c.next_seq) && s.carried < c.welcomed, now);
     }
 
     /// Ends the sync: the soonest answer anchors the clock, the slowest round trip (in ticks,

@@ -29,6 +29,7 @@ pub mod limits;
 pub mod log;
 pub mod message;
 pub mod scene;
+pub mod serial;
 pub mod shape;
 pub mod state;
 pub mod validate;

@@ -104,6 +104,38 @@ fn window_edges_stale_clamp_future_duplicate() {
     assert_eq!(clamping.advance().rollback_depth, 16);
 }
 
+/// A client whose seqs pass `u32::MAX` goes on at 1: its inputs of one tick apply in the order
+/// it numbered them (the last velocity set wins, as it would with small seqs), a copy from
+/// before the wrap is a duplicate, and the acks and the resume point count across the wrap.
+#[test]
+fn seqs_go_on_across_the_wrap() {
+    let on_tick = |inputs: &[ClientInput]| {
+        let mut s = session("breakout", |_| {});
+        for _ in 0..40 {
+            s.advance();
+        }
+        for i in inputs {
+            assert_eq!(s.submit(i.clone()), Ok(Tick(41)), "seq {}", i.seq);
+        }
+        for _ in 0..20 {
+            s.advance();
+        }
+        s
+    };
+    let last = |seq: u32| bat_input(seq, 41, -3.0);
+    let wrapped = on_tick(&[bat_input(u32::MAX - 1, 41, 1.0), bat_input(u32::MAX, 41, 2.0), last(1)]);
+    let small = on_tick(&[bat_input(7, 41, 1.0), bat_input(8, 41, 2.0), last(9)]);
+    let alone = on_tick(&[last(1)]);
+    assert_eq!(wrapped.world().state_hash(), small.world().state_hash(), "applied in the order numbered");
+    assert_eq!(wrapped.world().state_hash(), alone.world().state_hash(), "the last velocity set wins");
+    let mut s = wrapped;
+    let copy = s.submit(bat_input(u32::MAX, s.now().0, 2.0)).unwrap_err();
+    assert_eq!(copy.reason, RejectReason::Duplicate, "{}", copy.detail);
+    assert_eq!(s.next_seq(ClientId(1)), 2, "seq 0 is skipped");
+    // An ack of 2: 1 accepted, 0 never used, MAX and MAX - 1 accepted.
+    assert_eq!(s.accepted_before(ClientId(1), 2), 0b1101);
+}
+
 /// A client's view: events as published, then corrections applied by identity.
 #[derive(Default)]
 struct ClientView {

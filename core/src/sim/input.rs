@@ -295,13 +295,17 @@ fn clamp_speed(v: DVec3, max: f64) -> DVec3 {
     }
 }
 
-/// Applies the tick's inputs, sorted by `(client, seq)`.
+/// Applies the tick's inputs, sorted by client, then each client's in the order it numbered
+/// them (seqs in serial order: the one after `u32::MAX` comes after it).
 pub fn apply(w: &mut World, inputs: &[TickInput], out: &mut TickOutput) {
     if inputs.is_empty() {
         return;
     }
     let mut order: Vec<usize> = (0..inputs.len()).collect();
-    order.sort_by_key(|&k| (inputs[k].client, inputs[k].seq));
+    order.sort_by(|&a, &b| {
+        let (a, b) = (&inputs[a], &inputs[b]);
+        a.client.cmp(&b.client).then_with(|| impact_protocol::serial::cmp(a.seq, b.seq))
+    });
     let mut removed: Vec<EntityId> = Vec::new();
     for k in order {
         let input = &inputs[k];

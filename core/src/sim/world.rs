@@ -524,7 +524,8 @@ pub struct World {
 }
 
 impl World {
-    /// Adds a dynamic body and returns its id, or `None` when the world is full.
+    /// Adds a dynamic body and returns its id, or `None` when the world is full or has spent its
+    /// ids (ids are never reused: after `u32::MAX - 1` there are none).
     pub fn spawn(&mut self, b: NewBody) -> Option<EntityId> {
         if self.bodies.len() >= self.config.max_bodies as usize {
             return None;
@@ -726,6 +727,31 @@ mod tests {
             t.set_rule(ClassId(2), ClassId(1), rule);
             assert!(t.any_stopping(), "{rule:?}");
         }
+    }
+
+    /// Entity ids are never reused: the world that spent them (2^32 - 1 spawns) spawns no more
+    /// (`None`, as a full world does) and goes on stepping what it has.
+    #[test]
+    fn entity_ids_near_their_end_are_not_reused() {
+        let text = "[world]\nname = \"w\"\n[[class]]\nname = \"ball\"\n";
+        let mut w = crate::scene::Scene::parse(text, "<w>").expect("valid").world;
+        w.next_entity = u32::MAX - 2;
+        let ball = |x: f64| NewBody {
+            class: ClassId(0),
+            shape: Shape::Sphere { radius: 0.5 },
+            pos: DVec3::new(x, 0.0, 0.0),
+            vel: DVec3::X,
+            rot: DQuat::IDENTITY,
+            inv_mass: 1.0,
+            owner: None,
+        };
+        let ids: Vec<Option<EntityId>> = (0..4).map(|k| w.spawn(ball(f64::from(k) * 3.0))).collect();
+        assert_eq!(ids, [Some(EntityId(u32::MAX - 2)), Some(EntityId(u32::MAX - 1)), None, None]);
+        assert_eq!((w.bodies.len(), w.next_entity), (2, u32::MAX));
+        let hash = w.state_hash();
+        let mut stepper = crate::sim::step::Stepper::new(crate::sim::Plan::for_world(&w), false);
+        stepper.step(&mut w, &[], &mut crate::sim::TickOutput::default());
+        assert_ne!(w.state_hash(), hash, "the bodies it has still move");
     }
 
     proptest! {

@@ -6,7 +6,10 @@
 //! set; one at or below the floor (`highest - WINDOW`) is refused as a duplicate, because the
 //! window can no longer tell. So a seq is a nonce for as long as the window lives (the client's
 //! presence and its grace period), not just for the rollback window, and the memory is a fixed
-//! 136 bytes per client however long it stays.
+//! 136 bytes per client however long it stays. Seqs compare as serial numbers
+//! ([`impact_protocol::serial`]): a client's seqs go on past `u32::MAX` at 1.
+
+use impact_protocol::serial::{distance, next_seq, precedes};
 
 /// Seqs remembered below the highest accepted one (including it).
 pub const WINDOW: u32 = 1024;
@@ -20,7 +23,7 @@ pub enum Replay {
     Seen,
     /// The seq is at or below the floor: older than the window remembers.
     BelowFloor {
-        /// The highest seq not accepted for that reason (`highest - WINDOW`).
+        /// The newest seq not accepted for that reason (`highest - WINDOW`, wrapping).
         floor: u32,
     },
 }
@@ -38,11 +41,11 @@ impl SeqWindow {
     /// `Ok` when `seq` has not been accepted (and can still be told apart).
     pub fn check(&self, seq: u32) -> Result<(), Replay> {
         let Some(h) = self.highest else { return Ok(()) };
-        if seq > h {
+        if precedes(h, seq) {
             return Ok(());
         }
-        if h - seq >= WINDOW {
-            return Err(Replay::BelowFloor { floor: h - WINDOW });
+        if distance(seq, h) >= WINDOW {
+            return Err(Replay::BelowFloor { floor: h.wrapping_sub(WINDOW) });
         }
         if self.bit(seq) {
             Err(Replay::Seen)
@@ -54,14 +57,14 @@ impl SeqWindow {
     /// Records `seq` as accepted (call after [`check`](Self::check) passed).
     pub fn accept(&mut self, seq: u32) {
         match self.highest {
-            Some(h) if seq <= h => {}
+            Some(h) if !precedes(h, seq) => {}
             Some(h) => {
                 // The seqs between the old highest and the new one enter the window unseen.
-                if seq - h >= WINDOW {
+                if distance(h, seq) >= WINDOW {
                     self.bits = [0; WORDS];
                 } else {
-                    for s in h + 1..seq {
-                        self.set(s, false);
+                    for k in 1..distance(h, seq) {
+                        self.set(h.wrapping_add(k), false);
                     }
                 }
                 self.highest = Some(seq);
@@ -76,14 +79,14 @@ impl SeqWindow {
     pub fn accepted_before(&self, seq: u32) -> u64 {
         let Some(h) = self.highest else { return 0 };
         (0..64u32)
-            .filter_map(|k| seq.checked_sub(k + 1).map(|s| (k, s)))
-            .filter(|&(_, s)| s <= h && h - s < WINDOW && self.bit(s))
+            .map(|k| (k, seq.wrapping_sub(k + 1)))
+            .filter(|&(_, s)| distance(s, h) < WINDOW && self.bit(s))
             .fold(0, |bits, (k, _)| bits | 1 << k)
     }
 
-    /// The lowest seq above every accepted one: where a reconnecting client resumes.
+    /// The seq after every accepted one: where a reconnecting client resumes (0 before any).
     pub fn next_seq(&self) -> u32 {
-        self.highest.map_or(0, |h| h.saturating_add(1))
+        self.highest.map_or(0, next_seq)
     }
 
     /// The highest seq accepted and the window's bits (a checkpoint carries them).
@@ -132,26 +135,33 @@ mod tests {
 
     proptest! {
         #[test]
+        /// The window over seqs `base + 0..3000` (wrapping: a third of the cases cross
+        /// `u32::MAX`) says what the model says over `0..3000`.
         fn window_equals_the_set_of_accepted_seqs(
-            steps in prop::collection::vec((0u32..3000, any::<bool>()), 1..400)
+            steps in prop::collection::vec((0u32..3000, any::<bool>()), 1..400),
+            base in prop_oneof![Just(0u32), u32::MAX - 3000..=u32::MAX, any::<u32>()],
         ) {
             let mut w = SeqWindow::default();
             let mut accepted = BTreeSet::new();
+            let shift = |r: Result<(), Replay>| match r {
+                Err(Replay::BelowFloor { floor }) => Err(Replay::BelowFloor { floor: base.wrapping_add(floor) }),
+                r => r,
+            };
             for (seq, take) in steps {
-                let got = w.check(seq);
-                prop_assert_eq!(got, model(&accepted, seq), "seq {}", seq);
+                let got = w.check(base.wrapping_add(seq));
+                prop_assert_eq!(got, shift(model(&accepted, seq)), "seq {}", seq);
                 if take && got.is_ok() {
-                    w.accept(seq);
+                    w.accept(base.wrapping_add(seq));
                     accepted.insert(seq);
                 }
-                prop_assert_eq!(w.next_seq(), accepted.last().map_or(0, |h| h + 1));
+                prop_assert_eq!(w.next_seq(), accepted.last().map_or(0, |h| next_seq(base.wrapping_add(*h))));
                 // What an ack of `seq` says of the 64 seqs before it: those the model holds
                 // accepted and the window still tells apart.
                 let told: u64 = (0..64u32)
                     .filter_map(|k| seq.checked_sub(k + 1).map(|s| (k, s)))
                     .filter(|&(_, s)| model(&accepted, s) == Err(Replay::Seen))
                     .fold(0, |bits, (k, _)| bits | 1 << k);
-                prop_assert_eq!(w.accepted_before(seq), told, "seq {}", seq);
+                prop_assert_eq!(w.accepted_before(base.wrapping_add(seq)), told, "seq {}", seq);
             }
         }
     }
@@ -171,6 +181,28 @@ mod tests {
         // A jump past the whole window forgets the bits it skipped.
         w.accept(10_000);
         assert_eq!(w.check(9_999), Ok(()));
-        assert_eq!(w.check(u32::MAX), Ok(()));
+        assert_eq!(w.check(10_000 + (1 << 30)), Ok(()), "a quarter of the space ahead: newer");
+    }
+
+    /// A client whose seqs pass `u32::MAX` goes on at 1: accepted, told apart from the seqs
+    /// before the wrap, acked with them in `accepted_before`, and resumed after them.
+    #[test]
+    fn seqs_go_on_across_the_wrap() {
+        let mut w = SeqWindow::default();
+        for s in u32::MAX - 2..=u32::MAX {
+            w.accept(s);
+        }
+        assert_eq!(w.next_seq(), 1, "seq 0 is never used");
+        assert_eq!(w.check(1), Ok(()));
+        w.accept(1);
+        w.accept(3);
+        assert_eq!((w.check(u32::MAX), w.check(1), w.check(2)), (Err(Replay::Seen), Err(Replay::Seen), Ok(())));
+        assert_eq!(w.next_seq(), 4);
+        // Bit k of an ack of 4 is seq 3 - k: 3, (2 not), 1, (0 never), MAX, MAX - 1, MAX - 2.
+        assert_eq!(w.accepted_before(4), 0b111_0101);
+        for s in 4..1100 {
+            w.accept(s);
+        }
+        assert_eq!(w.check(u32::MAX), Err(Replay::BelowFloor { floor: 1099 - WINDOW }));
     }
 }
