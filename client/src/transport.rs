@@ -130,6 +130,12 @@ pub fn open_session(
                 r#"{"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 2}"#,
             )
             .map_err(bad)?;
+            // What was held back comes out at once (a link that stalled and recovered; a load
+            // generator's many clients on one session after a partition), and Zenoh drops what its
+            // queue of two 64 KB batches cannot take within a millisecond: inputs lost before they
+            // left the machine. Sixteen batches, allocated only when a burst needs them, as the
+            // server has.
+            c.insert_json5("transport/link/tx/queue/size/data", "16").map_err(bad)?;
             c
         }
     };

@@ -4,6 +4,7 @@
 
 pub mod browser;
 pub mod process;
+pub mod seeded;
 
 use impact_core::scene::Scene;
 use impact_protocol::{encode, keys, ClientId, ClientInput, ClientMessage, Encoding, ServerMessage, WorldId};
