@@ -3,6 +3,7 @@
 //! client, a test or a tool can use it without pulling in a runtime.
 //!
 //! - [`ids`]: typed identifiers with explicit sizes on the wire (`u32`, never `usize`).
+//! - [`serial`]: the counters that wrap (input seqs, frame numbers), ordered as serial numbers.
 //! - [`message`]: one enum per direction, [`ClientMessage`] and [`ServerMessage`].
 //! - [`action`]: what a client can do ([`Action`]) and where a ray hit ([`RayHit`]).
 //! - [`event`]: the [`CollisionEvent`] the server publishes.
