@@ -1,15 +1,22 @@
 #!/usr/bin/env python3
-"""Watches a running impact server through a soak: its resident memory (from /proc) and its
-once-a-second `stats` (tick p99, ingress queue depth, events/s), for a fixed time.
+"""Watches a running impact deployment through a soak: the resident memory of its processes
+(from /proc), the world's once-a-second `stats` (tick p99, ingress queue depth, events/s) and,
+with --confirmed, every confirmed batch (a tick missing, or published twice and different, is a
+confirmed event lost), for a fixed time.
 
-Writes one CSV row per stats message, a three-panel SVG plot, and prints a summary table and one
-JSON line: resident memory and queue depth after warm-up against the end (growth must stay under
-5 %; the five minutes after warm-up against the last five), tick p99 per minute. Exits 1 when memory or the queue grew by 5 % or more.
+Processes: --pid PID (the server, named `server`) and --watch NAME=PID or NAME=@FILE (the pid
+read from FILE every second: a role whose process changes, as the primary's does at a failover;
+each process a role had is its own series). Writes one CSV row per stats message, an SVG plot
+(memory of every series, tick p99, queue depth), and prints a table per --table-minutes, a
+summary and one JSON line. A series' memory growth compares the median of a window after its own
+warm-up with its last window (windows of 5 minutes, shorter on a short run). Exits 1 when a
+series grew by --max-growth-pct or more, the queue grew, or a confirmed tick was lost.
 
-    python3 scripts/soak_watch.py --pid PID --connect tcp/127.0.0.1:7447 --world arena \
+    python3 scripts/soak_watch.py --pid PID --connect tcp/127.0.0.1:7447 --world arena \\
         --minutes 30 --warmup-minutes 5 --csv docs/plots/soak.csv --svg docs/plots/soak.svg
 """
 import argparse
+import hashlib
 import json
 import statistics
 import sys
@@ -18,6 +25,8 @@ import time
 
 import msgpack
 import zenoh
+
+COLOURS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#17becf"]
 
 
 def rss_mb(pid):
@@ -28,86 +37,179 @@ def rss_mb(pid):
     raise RuntimeError("no VmRSS")
 
 
-def svg(rows, path, warmup_s):
-    """Three stacked line plots over time: RSS (MiB), tick p99 (ms), ingress queue depth."""
-    panels = [("resident memory, MiB", "rss_mb"), ("tick p99, ms", "tick_ms_p99"),
-              ("ingress queue depth (max per second)", "queue_depth_max")]
+class Role:
+    """A watched role: a fixed pid, or one read from a file each time."""
+
+    def __init__(self, spec):
+        name, _, where = spec.partition("=")
+        if not name or not where:
+            raise SystemExit(f"--watch {spec!r}: expected NAME=PID or NAME=@FILE")
+        self.name, self.where = name, where
+
+    def pid(self):
+        if not self.where.startswith("@"):
+            return int(self.where)
+        try:
+            with open(self.where[1:]) as f:
+                return int(f.read().strip())
+        except (OSError, ValueError):
+            return None
+
+
+class Confirmed:
+    """Every confirmed batch heard, in the order heard: a tick past the one after the highest
+    leaves the ticks between missing; a tick heard again is compared (by a digest of its events)
+    with the first, kept for the last KEPT ticks."""
+
+    KEPT = 4096
+
+    def __init__(self):
+        self.digests, self.highest, self.ticks = {}, None, 0
+        self.missing, self.repeated, self.changed = 0, 0, 0
+
+    def heard(self, tick, events):
+        d = hashlib.sha1(msgpack.packb(events)).hexdigest()
+        if self.highest is not None and tick <= self.highest:
+            old = self.digests.get(tick)
+            if old is not None:
+                self.repeated += 1
+                self.changed += old != d
+            return
+        if self.highest is not None:
+            self.missing += tick - self.highest - 1
+        self.highest, self.ticks = tick, self.ticks + 1
+        self.digests[tick] = d
+        while len(self.digests) > self.KEPT:
+            self.digests.pop(next(iter(self.digests)))
+
+
+def svg(rows, series, path, warmup_s):
+    """Three stacked plots over time: memory of every series, tick p99, ingress queue depth."""
     w, ph, left, top = 760, 170, 70, 30
     t_end = max(r["t_s"] for r in rows) or 1.0
-    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{top + len(panels) * (ph + 40)}" '
+    x = lambda t: left + (w - left - 20) * t / t_end
+    panels = [("resident memory, MiB", None), ("tick p99, ms", "tick_ms_p99"),
+              ("ingress queue depth (max per second)", "queue_depth_max")]
+    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{top + len(panels) * (ph + 40) + 20}" '
            'font-family="sans-serif" font-size="11">',
-           f'<text x="{left}" y="18" font-size="13">soak: {len(rows)} s, warm-up {warmup_s:.0f} s (shaded)</text>']
+           f'<text x="{left}" y="18" font-size="13">soak: {t_end / 60:.0f} min, warm-up {warmup_s / 60:.0f} min (shaded)</text>']
     for i, (title, key) in enumerate(panels):
         y0 = top + i * (ph + 40)
-        vals = [r[key] for r in rows]
-        hi = max(vals) * 1.1 or 1.0
-        x = lambda t: left + (w - left - 20) * t / t_end
+        lines = ([(f"{n} ({pid})", pts) for (n, pid), pts in series.items()] if key is None
+                 else [(key, [(r["t_s"], r[key]) for r in rows])])
+        hi = max((v for _, pts in lines for _, v in pts), default=1.0) * 1.1 or 1.0
         y = lambda v: y0 + ph - ph * v / hi
         out.append(f'<rect x="{left}" y="{y0}" width="{x(warmup_s) - left:.1f}" height="{ph}" fill="#eee"/>')
         out.append(f'<rect x="{left}" y="{y0}" width="{w - left - 20}" height="{ph}" fill="none" stroke="#999"/>')
         out.append(f'<text x="{left}" y="{y0 - 4}">{title}</text>')
         for frac in (0.0, 0.5, 1.0):
-            v = hi * frac
-            out.append(f'<text x="{left - 6}" y="{y(v) + 4:.1f}" text-anchor="end">{v:.1f}</text>')
-        pts = " ".join(f"{x(r['t_s']):.1f},{y(r[key]):.1f}" for r in rows)
-        out.append(f'<polyline points="{pts}" fill="none" stroke="#1f77b4" stroke-width="1"/>')
-        for m in range(0, int(t_end // 60) + 1, 5):
+            out.append(f'<text x="{left - 6}" y="{y(hi * frac) + 4:.1f}" text-anchor="end">{hi * frac:.1f}</text>')
+        for k, (label, pts) in enumerate(lines):
+            colour = COLOURS[k % len(COLOURS)]
+            poly = " ".join(f"{x(t):.1f},{y(v):.1f}" for t, v in pts)
+            out.append(f'<polyline points="{poly}" fill="none" stroke="{colour}" stroke-width="1"/>')
+            if key is None:
+                out.append(f'<text x="{left + 8 + 150 * (k % 4)}" y="{y0 + 14 + 12 * (k // 4)}" fill="{colour}">{label}</text>')
+        step = max(1, int(t_end // 60 // 12))
+        for m in range(0, int(t_end // 60) + 1, step):
             out.append(f'<text x="{x(m * 60):.1f}" y="{y0 + ph + 14}" text-anchor="middle">{m} min</text>')
     out.append("</svg>")
     with open(path, "w") as f:
         f.write("\n".join(out))
 
 
+def growth(pts, warmup_s):
+    """A series' memory after its own warm-up against its end: (after, end, %), or None when the
+    series is too short to tell."""
+    if not pts:
+        return None
+    start, end = pts[0][0], pts[-1][0]
+    steady = end - (start + warmup_s)
+    if steady < 30:
+        return None
+    window = min(300.0, steady / 3)
+    first = [v for t, v in pts if start + warmup_s <= t < start + warmup_s + window]
+    last = [v for t, v in pts if t >= end - window]
+    a, b = statistics.median(first), statistics.median(last)
+    return a, b, (b - a) / a * 100.0 if a > 0 else 0.0
+
+
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--pid", type=int, required=True, help="the impact-server process")
+    ap.add_argument("--pid", type=int, help="the impact-server process (watched as `server`)")
+    ap.add_argument("--watch", action="append", default=[], help="NAME=PID or NAME=@PIDFILE, repeatable")
     ap.add_argument("--connect", default="tcp/127.0.0.1:7447")
+    ap.add_argument("--mode", default="peer", choices=["peer", "client"])
     ap.add_argument("--world", default="arena")
     ap.add_argument("--minutes", type=float, default=30.0)
     ap.add_argument("--warmup-minutes", type=float, default=5.0)
+    ap.add_argument("--table-minutes", type=float, default=10.0)
+    ap.add_argument("--max-growth-pct", type=float, default=5.0)
+    ap.add_argument("--bound", action="append", default=[],
+                    help="a role whose memory growth is bounded, repeatable (default: every one)")
+    ap.add_argument("--confirmed", action="store_true", help="check every confirmed tick arrives, once")
     ap.add_argument("--csv", required=True)
     ap.add_argument("--svg", required=True)
+    ap.add_argument("--json", help="also write the result's JSON line here")
     args = ap.parse_args()
+    roles = ([Role(f"server={args.pid}")] if args.pid else []) + [Role(s) for s in args.watch]
+    if not roles:
+        raise SystemExit("nothing to watch: give --pid or --watch")
 
     conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("mode", json.dumps(args.mode))
     conf.insert_json5("connect/endpoints", json.dumps([args.connect]))
     conf.insert_json5("listen/endpoints", "[]")
     conf.insert_json5("scouting/multicast/enabled", "false")
     session = zenoh.open(conf)
-    rows, lock, t0 = [], threading.Lock(), time.time()
+    rows, series, lock, t0 = [], {}, threading.Lock(), time.time()
+    confirmed = Confirmed()
 
     def on_stats(sample):
         s = msgpack.unpackb(sample.payload.to_bytes(), raw=False)
-        try:
-            rss = rss_mb(args.pid)
-        except (OSError, RuntimeError):
-            return
         with lock:
-            rows.append({"t_s": round(time.time() - t0, 1), "tick": s["tick"], "rss_mb": round(rss, 2),
+            rows.append({"t_s": round(time.time() - t0, 1), "tick": s["tick"],
                          "tick_ms_p50": s["tick_ms_p50"], "tick_ms_p99": s["tick_ms_p99"],
                          "queue_depth_max": s["queue_depth_max"], "events_per_s": s["events_per_s"],
                          "overruns": s["overruns"]})
 
-    sub = session.declare_subscriber(f"impact/v1/{args.world}/stats", on_stats)
+    def on_confirmed(sample):
+        b = msgpack.unpackb(sample.payload.to_bytes(), raw=False)
+        with lock:
+            confirmed.heard(b["tick"], b.get("events", []))
+
+    subs = [session.declare_subscriber(f"impact/v1/{args.world}/stats", on_stats)]
+    if args.confirmed:
+        subs.append(session.declare_subscriber(f"impact/v1/{args.world}/confirmed", on_confirmed))
     end = t0 + args.minutes * 60
     next_line = t0 + 60
     while time.time() < end:
         time.sleep(1)
+        now = round(time.time() - t0, 1)
+        for role in roles:
+            pid = role.pid()
+            try:
+                mb = rss_mb(pid) if pid else None
+            except (OSError, RuntimeError):
+                mb = None
+            if mb is not None:
+                with lock:
+                    series.setdefault((role.name, pid), []).append((now, round(mb, 2)))
         if time.time() >= next_line:
             next_line += 60
             with lock:
                 last = rows[-1] if rows else None
+                mem = ", ".join(f"{n} {pts[-1][1]:.0f}" for (n, _), pts in series.items() if pts[-1][0] >= now - 2)
             if last:
-                print(f"  {last['t_s'] / 60:5.1f} min: rss {last['rss_mb']:.1f} MiB, tick p99 {last['tick_ms_p99']:.2f} ms, "
-                      f"queue {last['queue_depth_max']}", file=sys.stderr, flush=True)
-    sub.undeclare()
+                print(f"  {now / 60:5.1f} min: tick p99 {last['tick_ms_p99']:.2f} ms, queue {last['queue_depth_max']}, "
+                      f"MiB: {mem}", file=sys.stderr, flush=True)
+    for s in subs:
+        s.undeclare()
     session.close()
     with lock:
         rows = list(rows)
     if len(rows) < 10:
-        print(f"only {len(rows)} stats messages: is the server at {args.connect} publishing {args.world}?",
-              file=sys.stderr)
+        print(f"only {len(rows)} stats messages: is {args.world} published at {args.connect}?", file=sys.stderr)
         return 1
     with open(args.csv, "w") as f:
         keys = list(rows[0].keys())
@@ -116,33 +218,64 @@ def main():
             f.write(",".join(str(r[k]) for k in keys) + "\n")
     warm = args.warmup_minutes * 60
     after = [r for r in rows if r["t_s"] >= warm]
-    # The five minutes after warm-up against the last five (medians of their seconds).
-    first_min = [r for r in after if r["t_s"] < warm + 300]
-    last_min = [r for r in rows if r["t_s"] >= rows[-1]["t_s"] - 300]
-    med = lambda rs, k: statistics.median(r[k] for r in rs)
-    rss_a, rss_b = med(first_min, "rss_mb"), med(last_min, "rss_mb")
-    q_a, q_b = med(first_min, "queue_depth_max"), med(last_min, "queue_depth_max")
-    growth = lambda a, b: (b - a) / a * 100.0 if a > 0 else (0.0 if b == 0 else float("inf"))
-    per_minute = {}
-    for r in after:
-        per_minute.setdefault(int(r["t_s"] // 60), []).append(r["tick_ms_p99"])
-    p99_minutes = [statistics.median(v) for _, v in sorted(per_minute.items())]
+    first_q = [r["queue_depth_max"] for r in after if r["t_s"] < warm + 300]
+    last_q = [r["queue_depth_max"] for r in rows if r["t_s"] >= rows[-1]["t_s"] - 300]
+    q_a, q_b = statistics.median(first_q or [0]), statistics.median(last_q)
+
+    # The table: per period, the tick p99 (median and worst of its seconds) and each series'
+    # memory at its end.
+    period = args.table_minutes * 60
+    names = [f"{n} ({pid})" for n, pid in series]
+    print(f"  {'minutes':>9} {'tick p99 median':>16} {'worst':>8}  " + "  ".join(f"{n:>16}" for n in names))
+    periods = []
+    for k in range(int(rows[-1]["t_s"] // period) + 1):
+        rs = [r["tick_ms_p99"] for r in rows if k * period <= r["t_s"] < (k + 1) * period]
+        if not rs:
+            continue
+        mems = []
+        for pts in series.values():
+            inside = [v for t, v in pts if k * period <= t < (k + 1) * period]
+            mems.append(inside[-1] if inside else None)
+        periods.append({"from_min": round(k * period / 60, 1), "tick_ms_p99_median": statistics.median(rs),
+                        "tick_ms_p99_max": max(rs), "rss_mb": dict(zip(names, mems))})
+        cells = "  ".join(f"{m:>16.1f}" if m is not None else f"{'-':>16}" for m in mems)
+        print(f"  {k * period / 60:4.0f}-{(k + 1) * period / 60:<4.0f} {statistics.median(rs):16.2f} {max(rs):8.2f}  {cells}")
+
+    grew = {}
+    for (n, pid), pts in series.items():
+        g = growth(pts, warm)
+        if g:
+            grew[f"{n} ({pid})"] = {"after_warmup_mb": g[0], "end_mb": g[1], "growth_pct": round(g[2], 2),
+                                    "bounded": not args.bound or n in args.bound}
+    for name, g in grew.items():
+        print(f"  {name:28} memory after warm-up {g['after_warmup_mb']:8.1f} MiB, end {g['end_mb']:8.1f} MiB, "
+              f"growth {g['growth_pct']:+.2f} %{'' if g['bounded'] else ' (not bounded on this run)'}")
+    p99 = [r["tick_ms_p99"] for r in after] or [0.0]
     result = {
         "suite": "soak", "minutes": round(rows[-1]["t_s"] / 60, 1), "warmup_minutes": args.warmup_minutes,
-        "rss_mb_after_warmup": rss_a, "rss_mb_end": rss_b, "rss_growth_pct": round(growth(rss_a, rss_b), 2),
+        "memory": grew,
+        "max_growth_pct": max((g["growth_pct"] for g in grew.values() if g["bounded"]), default=0.0),
         "queue_depth_after_warmup": q_a, "queue_depth_end": q_b,
-        "tick_ms_p99_minute_median_min": min(p99_minutes), "tick_ms_p99_minute_median_max": max(p99_minutes),
-        "tick_ms_p99_median": statistics.median(p99_minutes), "overruns": rows[-1]["overruns"],
+        "tick_ms_p99_median": statistics.median(p99), "tick_ms_p99_max": max(p99),
+        "overruns": rows[-1]["overruns"], "periods": periods,
     }
-    svg(rows, args.svg, warm)
-    print(f"{'':2}{'':28}{'after warm-up':>14}{'end':>10}")
-    print(f"  {'resident memory, MiB':28}{rss_a:14.1f}{rss_b:10.1f}   growth {result['rss_growth_pct']:+.2f} %")
-    print(f"  {'ingress queue depth':28}{q_a:14.0f}{q_b:10.0f}")
-    print(f"  tick p99 per minute (median of its seconds): {min(p99_minutes):.2f} .. {max(p99_minutes):.2f} ms, "
-          f"median {result['tick_ms_p99_median']:.2f} ms; overruns {result['overruns']}")
-    print(json.dumps(result))
+    if args.confirmed:
+        result.update({"confirmed_ticks": confirmed.ticks, "confirmed_missing": confirmed.missing,
+                       "confirmed_repeated": confirmed.repeated, "confirmed_changed": confirmed.changed})
+        print(f"  confirmed ticks heard {confirmed.ticks}: missing {confirmed.missing}, "
+              f"published twice {confirmed.repeated} (changed {confirmed.changed})")
+    print(f"  tick p99 after warm-up: median {result['tick_ms_p99_median']:.2f} ms, worst second "
+          f"{result['tick_ms_p99_max']:.2f} ms; ingress queue {q_a:.0f} -> {q_b:.0f}; overruns {result['overruns']}")
+    svg(rows, series, args.svg, warm)
+    line = json.dumps(result)
+    print(line)
+    if args.json:
+        with open(args.json, "w") as f:
+            f.write(line + "\n")
     # Queue depths are small integers: one input of rounding is allowed on top of the 5 %.
-    ok = result["rss_growth_pct"] < 5.0 and q_b <= q_a * 1.05 + 1
+    ok = result["max_growth_pct"] < args.max_growth_pct and q_b <= q_a * 1.05 + 1
+    if args.confirmed:
+        ok = ok and confirmed.missing == 0 and confirmed.changed == 0 and confirmed.ticks > 0
     return 0 if ok else 1
 
 

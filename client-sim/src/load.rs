@@ -190,6 +190,22 @@ impl Faults {
         Faults { duplicate: rng.unit() * 0.05, partitions, stall_pid, stalls, drops }
     }
 
+    /// A long run's drops: every `every`, one session's clients dropped for `len` (sessions 1,
+    /// 2, ... in turn; never the first, which carries the world's stats), the last ending at
+    /// least a second before the load does. None with fewer than 2 sessions.
+    pub fn periodic_drops(duration: Duration, sessions: usize, every: Duration, len: Duration) -> Vec<Window> {
+        if sessions < 2 || every.is_zero() {
+            return Vec::new();
+        }
+        let last = duration.saturating_sub(len + Duration::from_secs(1));
+        (1u32..)
+            .map(|k| every * k)
+            .take_while(|start| *start <= last)
+            .enumerate()
+            .map(|(k, start)| Window { start, len, session: Some(1 + k % (sessions - 1)) })
+            .collect()
+    }
+
     /// When the partition holding at `since_start` on `session` ends, if one does.
     fn partition_end(&self, session: usize, since_start: Duration) -> Option<Duration> {
         self.partitions.iter().filter(|w| w.holds(session, since_start)).map(|w| w.start + w.len).max()
@@ -249,7 +265,7 @@ struct Client {
     /// Answers owed by the server, per seq: one per delivery of an input not yet accepted (a
     /// copy of an accepted input is skipped without an answer; a rejected one is answered again).
     owed: BTreeMap<u32, u32>,
-    /// Seqs acked: a second ack is an input applied twice.
+    /// Seqs acked, the last [`ACKED_KEPT`] or more: a second ack is an input applied twice.
     acked: std::collections::BTreeSet<u32>,
     margins: Margins,
     /// Accepted inputs sent in the first two seconds of play, and how many of them were late;
@@ -267,6 +283,10 @@ struct Client {
 
 /// Confirmed batches a client keeps the digest of, to see one change.
 const CONFIRMED_KEPT: u32 = 2048;
+
+/// Acked seqs a client remembers, at least: four times the server's window of seqs (1,024), past
+/// which a second ack could not be told from a first (a long run's set stays bounded).
+const ACKED_KEPT: u32 = 4096;
 
 /// A client back after its session was dropped: what the invariants ask of it.
 #[derive(Clone, Copy, Debug)]
@@ -296,7 +316,17 @@ impl Client {
     /// when it was acked before (applied twice).
     fn accepted(&mut self, seq: u32) -> bool {
         self.owed.remove(&seq);
-        self.acked.insert(seq)
+        self.note_acked(seq)
+    }
+
+    /// Remembers `seq` as acked (false when it was already); forgets those more than
+    /// [`ACKED_KEPT`] before it once twice as many are held.
+    fn note_acked(&mut self, seq: u32) -> bool {
+        let new = self.acked.insert(seq);
+        if self.acked.len() > 2 * ACKED_KEPT as usize {
+            self.acked.retain(|&s| impact_protocol::serial::distance(s, seq) < ACKED_KEPT);
+        }
+        new
     }
 
     /// Counts a reject of `seq` (a rejected input does not use up its seq, so each copy of it is
@@ -1069,7 +1099,7 @@ impl Run<'_> {
                 // may have been lost on the way).
                 for seq in impact_client::session::accepted_before(a.seq, a.accepted_before) {
                     c.owed.remove(&seq);
-                    c.acked.insert(seq);
+                    c.note_acked(seq);
                 }
             }
             ServerMessage::Reject(j) if j.client == c.id => {
@@ -1419,5 +1449,22 @@ impl Run<'_> {
         r.latency_histogram =
             (1..=top).map(|b| (b as f64 * 5.0, latency.count_between((b - 1) * bucket + 1, b * bucket))).collect();
         r
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Drops every 60 s over a 5-minute run on 3 sessions: sessions 1 and 2 in turn, the first
+    /// session never, the last drop over a second before the load ends.
+    #[test]
+    fn periodic_drops_take_turns_and_end_before_the_load() {
+        let s = Duration::from_secs;
+        let drops = Faults::periodic_drops(s(300), 3, s(60), s(3));
+        let at: Vec<(u64, Option<usize>)> = drops.iter().map(|w| (w.start.as_secs(), w.session)).collect();
+        assert_eq!(at, [(60, Some(1)), (120, Some(2)), (180, Some(1)), (240, Some(2))]);
+        assert!(drops.iter().all(|w| w.len == s(3) && w.start + w.len + s(1) <= s(300)));
+        assert!(Faults::periodic_drops(s(300), 1, s(60), s(3)).is_empty(), "one session: none to drop");
     }
 }

@@ -3,7 +3,7 @@
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use impact_client::netsim::Link;
-use impact_client_sim::load::{self, Behaviour, LoadConfig};
+use impact_client_sim::load::{self, Behaviour, Faults, LoadConfig};
 use impact_client_sim::net;
 use impact_client_sim::report::latency_svg;
 use impact_client_sim::timing::Timing;
@@ -70,9 +70,21 @@ struct Args {
     #[arg(long)]
     assert_p99_ms: Option<f64>,
     /// Exit non-zero if any client's view of its events differs from the confirmed stream, or a
-    /// delivered input was never answered.
+    /// delivered input was never answered (with --outages: an input is still awaited, neither
+    /// answered nor known to its client as lost).
     #[arg(long)]
     assert_views: bool,
+    /// The run goes through outages the simulator does not make (a failover, a router restart,
+    /// --drop-every): what they cut off may go unanswered, and must then be known lost.
+    #[arg(long)]
+    outages: bool,
+    /// Every this long, one Zenoh session's clients drop and come back (sessions 1, 2, ... in
+    /// turn; needs --sessions 2 or more): a phone's handover in a long run.
+    #[arg(long, value_parser = parse_duration)]
+    drop_every: Option<Duration>,
+    /// How long each --drop-every drop lasts.
+    #[arg(long, default_value = "1s", value_parser = parse_duration)]
+    drop_for: Duration,
     /// Zenoh session mode: `client` talks only to the router it connects to (a deployment
     /// behind zenohd); `peer` may also connect to the servers directly.
     #[arg(long, value_enum, default_value_t = net::Mode::Peer)]
@@ -187,6 +199,15 @@ fn main() -> Result<()> {
     }
     let ms = |x: f64| Duration::from_secs_f64(x.max(0.0) / 1000.0);
     let (predict, scene) = prediction(&a)?;
+    let sessions =
+        if a.users.is_some() { a.clients } else { a.sessions.unwrap_or_else(|| a.clients.div_ceil(100).max(1)) };
+    let drops = match a.drop_every {
+        Some(_) if sessions < 2 => {
+            bail!("--drop-every needs 2 or more sessions (--sessions): the first is never dropped")
+        }
+        Some(every) => Faults::periodic_drops(a.duration, sessions as usize, every, a.drop_for),
+        None => Vec::new(),
+    };
     let cfg = LoadConfig {
         connect: if a.zenoh_config.is_some() { Vec::new() } else { a.connect.clone() },
         zenoh_config: a.zenoh_config.clone(),
@@ -194,11 +215,7 @@ fn main() -> Result<()> {
         world: WorldId::new(a.world.clone()).map_err(anyhow::Error::msg)?,
         clients: a.clients,
         first_client: a.first_client,
-        sessions: if a.users.is_some() {
-            a.clients
-        } else {
-            a.sessions.unwrap_or_else(|| a.clients.div_ceil(100).max(1))
-        },
+        sessions,
         users: a.users.as_deref().map(impact_server::runtime::auth::Users::load).transpose()?,
         duration: a.duration,
         uplink: Link { latency: ms(a.latency_ms), jitter: ms(a.jitter_ms), loss: a.loss },
@@ -211,7 +228,7 @@ fn main() -> Result<()> {
         // Long enough for the last inputs to be acked and their ticks confirmed.
         settle: ms(4.0 * (a.latency_ms + a.jitter_ms) + 1500.0),
         progress: true,
-        faults: Default::default(),
+        faults: Faults { drops: drops.clone(), ..Default::default() },
         state: a.state,
         predict,
         scene,
@@ -249,12 +266,15 @@ fn main() -> Result<()> {
             report.clients
         );
     }
-    if a.assert_views && (report.views_mismatched > 0 || report.inputs_unanswered > 0 || report.views_matched == 0) {
+    let outages = a.outages || !drops.is_empty();
+    let silent = if outages { report.inputs_awaited } else { report.inputs_unanswered };
+    if a.assert_views && (report.views_mismatched > 0 || silent > 0 || report.views_matched == 0) {
         bail!(
-            "{} views differed from the confirmed stream ({} matched), {} inputs unanswered",
+            "{} views differed from the confirmed stream ({} matched), {} {}",
             report.views_mismatched,
             report.views_matched,
-            report.inputs_unanswered
+            silent,
+            if outages { "inputs still awaited (neither answered nor known lost)" } else { "inputs unanswered" }
         );
     }
     if let Some(bound) = a.assert_p99_ms {
