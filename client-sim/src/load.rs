@@ -480,7 +480,10 @@ struct Wiring {
     state_frames: Arc<AtomicU64>,
     /// Bytes of every message the clients received on their own keys (answers, events, state).
     down_bytes: Arc<AtomicU64>,
-    subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
+    /// Each client's subscriptions (answers, events, state), replaced with its session's.
+    subscribers: Vec<Vec<zenoh::pubsub::Subscriber<()>>>,
+    /// The run's subscription to the world's stats, on session 0.
+    stats: Option<zenoh::pubsub::Subscriber<()>>,
     /// Each client's input publisher. Declared, as a game's transport declares it: the key is
     /// then resolved once, not on every message at the server.
     inputs: Vec<zenoh::pubsub::Publisher<'static>>,
@@ -506,6 +509,7 @@ impl Wiring {
             state_frames: Arc::new(AtomicU64::new(0)),
             down_bytes: Arc::new(AtomicU64::new(0)),
             subscribers: Vec::new(),
+            stats: None,
             inputs: Vec::new(),
             tokens: Vec::new(),
             generation: 0,
@@ -521,14 +525,21 @@ impl Wiring {
     /// Subscribes each client to its answers, events and state stream in `world`, and the run
     /// to its stats.
     fn subscribe(&mut self, cfg: &LoadConfig, world: &WorldId, clients: &[Client]) -> anyhow::Result<()> {
-        for (k, c) in clients.iter().enumerate() {
-            self.subscribe_client(cfg, world, k, c)?;
-        }
+        self.subscribers = clients
+            .iter()
+            .enumerate()
+            .map(|(k, c)| self.subscribe_client(cfg, world, k, c))
+            .collect::<anyhow::Result<_>>()?;
         self.inputs = clients
             .iter()
             .enumerate()
             .map(|(k, c)| self.input_publisher(cfg, world, k, c))
             .collect::<anyhow::Result<_>>()?;
+        self.subscribe_stats(world)
+    }
+
+    /// Subscribes the run to `world`'s stats, on session 0 (again when that session reopens).
+    fn subscribe_stats(&mut self, world: &WorldId) -> anyhow::Result<()> {
         let (inbox, generation) = (self.inbox.clone(), self.generation);
         let stats = self.sessions[0]
             .declare_subscriber(keys::STATS.key(world, None))
@@ -543,7 +554,7 @@ impl Wiring {
             })
             .wait()
             .map_err(|e| anyhow::anyhow!("subscribing: {e}"))?;
-        self.subscribers.push(stats);
+        self.stats = Some(stats);
         Ok(())
     }
 
@@ -552,6 +563,7 @@ impl Wiring {
     fn rewire(&mut self, cfg: &LoadConfig, world: &WorldId, clients: &[Client]) -> anyhow::Result<()> {
         self.tokens.clear();
         self.subscribers.clear();
+        self.stats = None;
         self.generation += 1;
         self.subscribe(cfg, world, clients)?;
         self.declare_presence(world, clients)
@@ -614,8 +626,10 @@ impl Wiring {
             Ok(Err(_)) | Err(_) => return Ok(false),
         }
         let n = self.sessions.len();
+        // What was declared on the closed session is dropped as it is replaced (held, it
+        // would keep the closed session's state alive: a leak of one session per drop).
         for (k, c) in clients.iter().enumerate().filter(|(k, _)| k % n == s) {
-            self.subscribe_client(cfg, world, k, c)?;
+            self.subscribers[k] = self.subscribe_client(cfg, world, k, c)?;
             self.inputs[k] = self.input_publisher(cfg, world, k, c)?;
             self.tokens[k] = self
                 .session(k)
@@ -624,11 +638,22 @@ impl Wiring {
                 .wait()
                 .map_err(|e| anyhow::anyhow!("presence token: {e}"))?;
         }
+        if s == 0 {
+            self.subscribe_stats(world)?;
+        }
         self.closed[s] = false;
         Ok(true)
     }
 
-    fn subscribe_client(&mut self, cfg: &LoadConfig, world: &WorldId, k: usize, c: &Client) -> anyhow::Result<()> {
+    /// Client `k`'s subscriptions in `world`, on its session.
+    fn subscribe_client(
+        &self,
+        cfg: &LoadConfig,
+        world: &WorldId,
+        k: usize,
+        c: &Client,
+    ) -> anyhow::Result<Vec<zenoh::pubsub::Subscriber<()>>> {
+        let mut subs = Vec::new();
         let mut decoded = vec![(keys::CLIENT_ACK, false), (keys::CLIENT_EVENTS, false)];
         // A game client reads its state stream; the others (with `state`) only count its bytes.
         if c.game {
@@ -661,7 +686,7 @@ impl Wiring {
                 })
                 .wait()
                 .map_err(|e| anyhow::anyhow!("subscribing: {e}"))?;
-            self.subscribers.push(sub);
+            subs.push(sub);
         }
         if cfg.state && !c.game {
             let (bytes, frames) = (self.state_bytes.clone(), self.state_frames.clone());
@@ -676,9 +701,9 @@ impl Wiring {
                 })
                 .wait()
                 .map_err(|e| anyhow::anyhow!("subscribing: {e}"))?;
-            self.subscribers.push(sub);
+            subs.push(sub);
         }
-        Ok(())
+        Ok(subs)
     }
 
     /// Declares every client's presence: last, so every subscription is in place when the
@@ -717,6 +742,7 @@ impl Wiring {
     fn close(self) {
         drop(self.tokens);
         drop(self.subscribers);
+        drop(self.stats);
         drop(self.inputs);
         for s in self.sessions {
             let _ = s.close().wait();
