@@ -1215,6 +1215,10 @@ impl Run<'_> {
                 c.next_frame = (c.next_frame + FRAME).max(now);
                 let _ = s.draw_avatar(now);
             }
+            // A game reads its event news every frame. The load checks views by the confirmed
+            // batches instead, but takes the news too: held, each session's queue would fill to
+            // its bound (4,096 news a client, a soak's slow climb of memory).
+            s.take_event_news().for_each(drop);
             for a in s.take_answers() {
                 if a.outcome == Outcome::Lost {
                     // Known to the client as never having reached the server (PROTOCOL.md,
