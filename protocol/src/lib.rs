@@ -15,6 +15,7 @@
 //! - [`codec`]: [`encode`] and [`decode`], MessagePack by default, JSON on request.
 //! - [`limits`]: the hard bounds every decoded message is checked against.
 //! - [`log`]: the input log a standby follows and a recording replays.
+//! - [`users`]: the users file, who may be which client, and the access rules it implies.
 //! - [`validate`]: the value checks every decoded message passes ([`Validate`]).
 //! - [`error`]: [`ProtocolError`], why a payload was refused.
 //!
@@ -33,6 +34,7 @@ pub mod scene;
 pub mod serial;
 pub mod shape;
 pub mod state;
+pub mod users;
 pub mod validate;
 
 pub use codec::{decode, decode_unchecked, encode, input_header, Encoding};

@@ -147,3 +147,25 @@ fn wrong_password_and_no_credentials_get_no_session() {
     }
     drop(server);
 }
+
+/// The client library's transport connects under access control: it finds the world's server
+/// by a liveliness query on the servers' tokens, which the rules allow every user (before they
+/// did, a client with a password was told no server ran the world), and is welcomed.
+#[test]
+fn the_client_library_connects_under_access_control() {
+    use impact_client::transport::{ConnectOptions, Connection, Credentials};
+    use impact_client::{Session, SessionConfig, Status};
+    let (_server, ep) = secured();
+    let mut opts = ConnectOptions::new(vec![ep], WorldId::new("arena").unwrap(), ClientId(1));
+    opts.credentials = Some(Credentials { user: "alice".into(), password: "alice-secret".into() });
+    opts.find_server = Duration::from_secs(3);
+    let conn = Connection::open(&opts).expect("finds the server under access control");
+    let mut game = Session::new(SessionConfig::new(ClientId(1)));
+    let end = std::time::Instant::now() + Duration::from_secs(10);
+    while game.status() != Status::Playing && std::time::Instant::now() < end {
+        conn.pump(&mut game, std::time::Instant::now()).expect("pumps");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert_eq!(game.status(), Status::Playing, "welcomed and synced");
+    conn.close();
+}

@@ -216,7 +216,7 @@ fn main() -> Result<()> {
         clients: a.clients,
         first_client: a.first_client,
         sessions,
-        users: a.users.as_deref().map(impact_server::runtime::auth::Users::load).transpose()?,
+        users: a.users.as_deref().map(impact_server::runtime::auth::load).transpose()?,
         duration: a.duration,
         uplink: Link { latency: ms(a.latency_ms), jitter: ms(a.jitter_ms), loss: a.loss },
         downlink: Link { latency: ms(a.latency_ms), jitter: ms(a.jitter_ms), loss: 0.0 },

@@ -157,7 +157,7 @@ struct Args {
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let users = args.users.as_deref().map(Users::load).transpose()?;
+    let users = args.users.as_deref().map(impact_server::runtime::auth::load).transpose()?;
     if args.print_acl {
         let users = users.context("--print-acl needs --users")?;
         println!("{}", users.router_config(&args.dictionary_path));

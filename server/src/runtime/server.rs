@@ -241,7 +241,7 @@ fn reject(client: ClientId, header: Option<(u32, Tick)>, reason: RejectReason, d
 /// Opens the process's Zenoh session (with `--users`' access control when given).
 fn open_session(opts: &ServerOptions) -> Result<Arc<Closer>, RuntimeError> {
     let mut config = super::zenoh_config(opts.zenoh_config.as_deref(), &opts.listen, &opts.connect)?;
-    let dictionary = opts.users.as_ref().map(|u| u.apply(&mut config)).transpose()?;
+    let dictionary = opts.users.as_ref().map(|u| super::auth::apply(u, &mut config)).transpose()?;
     let zs = zenoh::open(config).wait().map_err(|e| RuntimeError::Zenoh(format!("opening the session: {e}")))?;
     // Zenoh read the password dictionary while opening: the file need not outlive this line.
     drop(dictionary);

@@ -72,7 +72,7 @@ fn round(users: Option<&Users>, a: &AuthArgs, m: &mut Mode) -> Result<()> {
     let ep = format!("tcp/127.0.0.1:{}", port()?);
     let mut cfg = impact_server::runtime::zenoh_config(None, std::slice::from_ref(&ep), &[])?;
     let t = Instant::now();
-    let dict = users.map(|u| u.apply(&mut cfg)).transpose()?;
+    let dict = users.map(|u| impact_server::runtime::auth::apply(u, &mut cfg)).transpose()?;
     let server = zenoh::open(cfg).wait().map_err(|e| anyhow!("server session: {e}"))?;
     m.open_ms.push(t.elapsed().as_secs_f64() * 1e3);
     drop(dict);
