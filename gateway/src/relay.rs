@@ -1,0 +1,203 @@
+//! The gateway's Zenoh side: one session for every player it relays, and for each player the
+//! subscriptions, input publisher and presence token a Rust client's transport would declare,
+//! on that player's keys and no other's.
+//!
+//! Fencing (PROTOCOL.md, "Failover"): every sample the server publishes carries its owner
+//! epoch. The gateway keeps the newest epoch heard per world and drops a sample of an older one
+//! (a primary that stalled past its lease and resumed), as the Rust client does, so a browser
+//! never sees two owners.
+
+use crate::auth::Player;
+use crate::outbox::{Kind, Mailbox};
+use impact_client::transport::epoch_of;
+use impact_protocol::limits::MAX_SERVER_MESSAGE_BYTES;
+use impact_protocol::{keys, Encoding, ServerMessage, WorldId};
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+/// How long the gateway looks for a world's server before refusing a player.
+pub const FIND_SERVER: Duration = Duration::from_secs(2);
+/// How long a scene query waits.
+pub const QUERY_TIMEOUT: Duration = Duration::from_secs(3);
+
+/// Why a player could not be relayed.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum RelayError {
+    /// No server token for the world.
+    #[error("no server runs world {0}")]
+    NoServer(String),
+    /// Servers for the world speak other protocol versions.
+    #[error("world {world} is served at protocol {found:?}, this gateway speaks {ours}")]
+    Version {
+        /// The world.
+        world: String,
+        /// The versions found.
+        found: Vec<String>,
+        /// The gateway's.
+        ours: &'static str,
+    },
+    /// Zenoh refused a declaration or a query.
+    #[error("zenoh: {0}")]
+    Zenoh(String),
+}
+
+/// The session and the newest owner epoch per world.
+#[derive(Debug)]
+pub struct Relay {
+    session: zenoh::Session,
+    epochs: Mutex<BTreeMap<WorldId, Arc<AtomicU64>>>,
+}
+
+/// One player's declarations: dropped, they are undeclared (the presence token last).
+#[derive(Debug)]
+pub struct Link {
+    input: zenoh::pubsub::Publisher<'static>,
+    _subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
+    _token: zenoh::liveliness::LivelinessToken,
+}
+
+impl Link {
+    /// Publishes one client message (MessagePack, checked by the caller) on the player's input
+    /// key.
+    pub async fn send(&self, bytes: Vec<u8>) -> Result<(), RelayError> {
+        self.input.put(bytes).await.map_err(|e| RelayError::Zenoh(e.to_string()))
+    }
+}
+
+fn zerr(what: &str) -> impl Fn(zenoh::Error) -> RelayError + '_ {
+    move |e| RelayError::Zenoh(format!("{what}: {e}"))
+}
+
+/// A sample's payload as MessagePack (the server publishes a player's messages in the encoding
+/// of its inputs, MessagePack here; a JSON one is re-encoded), or `None` if it does not decode.
+fn as_msgpack(sample: &zenoh::sample::Sample) -> Option<Vec<u8>> {
+    let bytes = sample.payload().to_bytes();
+    match Encoding::from_zenoh_tag(&sample.encoding().to_string()).unwrap_or_default() {
+        Encoding::MsgPack => Some(bytes.into_owned()),
+        Encoding::Json => {
+            let msg: ServerMessage = impact_protocol::decode(&bytes, Encoding::Json, MAX_SERVER_MESSAGE_BYTES).ok()?;
+            impact_protocol::encode(&msg, Encoding::MsgPack).ok()
+        }
+    }
+}
+
+impl Relay {
+    /// Relays over `session`.
+    pub fn new(session: zenoh::Session) -> Relay {
+        Relay { session, epochs: Mutex::new(BTreeMap::new()) }
+    }
+
+    /// The Zenoh session.
+    pub fn session(&self) -> &zenoh::Session {
+        &self.session
+    }
+
+    /// Whether the session has a router or a peer (blocking: call it off the async runtime).
+    pub fn reachable(&self) -> bool {
+        impact_client::transport::reachable(&self.session)
+    }
+
+    fn epoch_floor(&self, world: &WorldId) -> Arc<AtomicU64> {
+        let mut epochs = self.epochs.lock().unwrap_or_else(|e| e.into_inner());
+        epochs.entry(world.clone()).or_default().clone()
+    }
+
+    /// Looks for the world's server (its liveliness token, at any protocol version).
+    pub async fn find_server(&self, world: &WorldId) -> Result<(), RelayError> {
+        let replies = self
+            .session
+            .liveliness()
+            .get(format!("impact/*/{}/server", world.as_str()))
+            .timeout(FIND_SERVER)
+            .await
+            .map_err(zerr("looking for the server"))?;
+        let mut found = Vec::new();
+        while let Ok(reply) = replies.recv_async().await {
+            if let Ok(sample) = reply.result() {
+                let v = sample.key_expr().as_str().split('/').nth(1).unwrap_or("").to_string();
+                if v == keys::VERSION {
+                    return Ok(());
+                }
+                if !found.contains(&v) {
+                    found.push(v);
+                }
+            }
+        }
+        if found.is_empty() {
+            Err(RelayError::NoServer(world.as_str().to_string()))
+        } else {
+            Err(RelayError::Version { world: world.as_str().to_string(), found, ours: keys::VERSION })
+        }
+    }
+
+    /// Declares `player`'s subscriptions (its answers, events and, with `state`, its state
+    /// stream, into `mailbox`), its input publisher, then its presence: the server's welcome
+    /// follows.
+    pub async fn join(&self, player: &Player, state: bool, mailbox: Arc<Mailbox>) -> Result<Link, RelayError> {
+        let (w, c) = (&player.world, Some(player.client));
+        let floor = self.epoch_floor(w);
+        let mut wanted = vec![(keys::CLIENT_ACK.key(w, c), Kind::Kept), (keys::CLIENT_EVENTS.key(w, c), Kind::Kept)];
+        if state {
+            wanted.push((keys::CLIENT_STATE.key(w, c), Kind::State));
+        }
+        let mut subscribers = Vec::new();
+        for (key, kind) in wanted {
+            let (mailbox, floor) = (mailbox.clone(), floor.clone());
+            let sub = self
+                .session
+                .declare_subscriber(key)
+                .callback(move |sample| {
+                    if let Some(e) = epoch_of(&sample) {
+                        // An older owner's sample is dropped; a newer owner raises the floor.
+                        if floor.fetch_max(e.0, Relaxed) > e.0 {
+                            mailbox.count_stale_owner();
+                            return;
+                        }
+                    }
+                    match as_msgpack(&sample) {
+                        Some(bytes) => mailbox.deliver(kind, bytes),
+                        None => mailbox.count_malformed(),
+                    }
+                })
+                .await
+                .map_err(zerr("subscribing"))?;
+            subscribers.push(sub);
+        }
+        let input = self
+            .session
+            .declare_publisher(keys::INPUT.key(w, c))
+            .encoding(Encoding::MsgPack.zenoh_tag())
+            .await
+            .map_err(zerr("declaring the input publisher"))?;
+        let token = self
+            .session
+            .liveliness()
+            .declare_token(keys::PRESENCE.key(w, c))
+            .await
+            .map_err(zerr("declaring the presence"))?;
+        Ok(Link { input, _subscribers: subscribers, _token: token })
+    }
+
+    /// The world's scene (`query/scene`) as the server answered it, MessagePack; a
+    /// `query_error` message when nobody answered.
+    pub async fn scene(&self, world: &WorldId) -> Vec<u8> {
+        let failed = |detail: String| {
+            let msg = ServerMessage::QueryError(impact_protocol::QueryError { detail });
+            impact_protocol::encode(&msg, Encoding::MsgPack).unwrap_or_default()
+        };
+        let replies = match self.session.get(keys::QUERY_SCENE.key(world, None)).timeout(QUERY_TIMEOUT).await {
+            Ok(r) => r,
+            Err(e) => return failed(format!("querying the scene: {e}")),
+        };
+        while let Ok(reply) = replies.recv_async().await {
+            if let Ok(sample) = reply.result() {
+                if let Some(bytes) = as_msgpack(sample) {
+                    return bytes;
+                }
+            }
+        }
+        failed(format!("no scene from world {} within {} s", world.as_str(), QUERY_TIMEOUT.as_secs()))
+    }
+}

@@ -1,0 +1,330 @@
+//! The WebSocket gateway end to end: a server under `--users`, `impact-gateway` in front of it
+//! with the users file's `[[gateway]]` credential, and WebSocket clients speaking the binding as
+//! a browser does (PROTOCOL.md, "WebSocket binding"). A player plays (welcome, ack, state,
+//! scene); every way the gateway refuses or ends a connection reaches the client as its close
+//! code and reason; a player's messages go out on its own keys only, whatever it writes in them.
+//! Every wait is bounded.
+
+mod common;
+
+use common::*;
+use impact_client::transport::{open_session, Credentials, Mode};
+use impact_core::scene::Scene;
+use impact_gateway::auth::Authenticator;
+use impact_gateway::gateway::{start, Running};
+use impact_gateway::token::{unix_now, Grant, Secret};
+use impact_gateway::{Config, Gateway};
+use impact_protocol::users::Users;
+use impact_protocol::{keys, Action, ClientId, ClientInput, ClientMessage, Encoding, ServerMessage, Tick, WorldId};
+use serde_json::json;
+use std::net::TcpStream;
+use std::time::{Duration, Instant};
+use tungstenite::stream::MaybeTlsStream;
+use tungstenite::{Message, WebSocket};
+
+const GATEWAY: &str = "\n[[gateway]]\nname = \"gw\"\npassword = \"gw-secret\"\n";
+const SECRET: &[u8] = b"a shared secret of at least 32 bytes";
+
+/// A server enforcing the users file (and its gateway entry), and a gateway in front of it.
+fn deployment(tweak: impl FnOnce(&mut Config)) -> (impact_server::runtime::ServerHandle, String, Running) {
+    let users = Users::parse(&format!("{USERS}{GATEWAY}")).unwrap();
+    let scene = Scene::load(&Scene::bundled_path("arena")).unwrap();
+    let (server, ep) = server(scene, |o| o.users = Some(users.clone()));
+    let creds = Credentials { user: "gw".into(), password: "gw-secret".into() };
+    let session = open_session(std::slice::from_ref(&ep), None, Some(&creds), Mode::Peer)
+        .expect("the gateway's credential is accepted");
+    let mut config = Config {
+        auth: Authenticator { users: Some(users), secret: Some(Secret::new(SECRET).unwrap()) },
+        ..Config::default()
+    };
+    tweak(&mut config);
+    let gw = start(Gateway::new(config, session), "127.0.0.1:0", 2).expect("the gateway starts");
+    (server, ep, gw)
+}
+
+/// What a WebSocket client read next.
+#[derive(Debug)]
+enum Got {
+    Msg(Vec<u8>),
+    Closed(u16, String),
+    Nothing,
+}
+
+struct Ws(WebSocket<MaybeTlsStream<TcpStream>>);
+
+impl Ws {
+    fn connect(gw: &Running) -> Ws {
+        Ws::connect_from(gw, None).expect("the upgrade succeeds")
+    }
+
+    /// Connects as a page of `origin` would.
+    fn connect_from(gw: &Running, origin: Option<&str>) -> Result<Ws, tungstenite::Error> {
+        use tungstenite::client::IntoClientRequest;
+        let mut req = format!("ws://{}/ws", gw.addr).into_client_request().unwrap();
+        if let Some(o) = origin {
+            req.headers_mut().insert("origin", o.parse().unwrap());
+        }
+        let stream = TcpStream::connect(gw.addr).unwrap();
+        let (ws, _) = tungstenite::client(req, MaybeTlsStream::Plain(stream)).map_err(|e| match e {
+            tungstenite::HandshakeError::Failure(e) => e,
+            tungstenite::HandshakeError::Interrupted(_) => tungstenite::Error::ConnectionClosed,
+        })?;
+        Ok(Ws(ws))
+    }
+
+    fn send(&mut self, v: &serde_json::Value) {
+        self.send_bytes(rmp_serde::to_vec_named(v).unwrap());
+    }
+
+    fn send_bytes(&mut self, b: Vec<u8>) {
+        let _ = self.0.send(Message::Binary(b.into()));
+    }
+
+    fn send_msg(&mut self, m: &ClientMessage) {
+        self.send_bytes(impact_protocol::encode(m, Encoding::MsgPack).unwrap());
+    }
+
+    fn next(&mut self, wait: Duration) -> Got {
+        if let MaybeTlsStream::Plain(s) = self.0.get_ref() {
+            s.set_read_timeout(Some(wait.max(Duration::from_millis(1)))).unwrap();
+        }
+        loop {
+            match self.0.read() {
+                Ok(Message::Binary(b)) => return Got::Msg(b.to_vec()),
+                Ok(Message::Close(Some(f))) => return Got::Closed(f.code.into(), f.reason.to_string()),
+                Ok(Message::Close(None)) => return Got::Closed(1005, String::new()),
+                Ok(_) => continue,
+                Err(_) => return Got::Nothing,
+            }
+        }
+    }
+
+    /// The first server message within `wait` for which `f` says something (gateway notices
+    /// and other messages skipped).
+    fn until<T>(&mut self, wait: Duration, mut f: impl FnMut(&ServerMessage) -> Option<T>) -> Option<T> {
+        let end = Instant::now() + wait;
+        while let Some(left) = end.checked_duration_since(Instant::now()) {
+            match self.next(left) {
+                Got::Msg(b) => {
+                    let m = impact_protocol::decode::<ServerMessage>(&b, Encoding::MsgPack, usize::MAX);
+                    if let Some(t) = m.ok().as_ref().and_then(&mut f) {
+                        return Some(t);
+                    }
+                }
+                Got::Closed(..) | Got::Nothing => return None,
+            }
+        }
+        None
+    }
+
+    /// The close code and reason within `wait`, reading past any message.
+    fn closed(&mut self, wait: Duration) -> Option<(u16, String)> {
+        let end = Instant::now() + wait;
+        while let Some(left) = end.checked_duration_since(Instant::now()) {
+            match self.next(left) {
+                Got::Msg(_) => continue,
+                Got::Closed(code, reason) => return Some((code, reason)),
+                Got::Nothing => return None,
+            }
+        }
+        None
+    }
+
+    /// The gateway's `ready` notice, as JSON.
+    fn ready(&mut self, wait: Duration) -> Option<serde_json::Value> {
+        match self.next(wait) {
+            Got::Msg(b) => rmp_serde::from_slice::<serde_json::Value>(&b).ok().filter(|v| v["type"] == "ready"),
+            _ => None,
+        }
+    }
+}
+
+fn hello(user: &str, password: &str, client: u32) -> serde_json::Value {
+    json!({"type": "hello", "world": "arena", "client": client, "user": user, "password": password})
+}
+
+fn walk(client: u32, seq: u32, tick: Tick, avatar: impact_protocol::EntityId) -> ClientMessage {
+    ClientMessage::Input(ClientInput {
+        aim_tick: None,
+        view_tick: None,
+        client: ClientId(client),
+        seq,
+        tick,
+        actions: vec![Action::SetVelocity { entity: avatar, velocity: [2.0, 0.0, 0.0] }],
+    })
+}
+
+const WAIT: Duration = Duration::from_secs(10);
+
+/// Join, welcome, an input acked, the state stream and the scene: a browser player's whole
+/// path, through the gateway and the server's access control.
+#[test]
+fn a_browser_player_plays_through_the_gateway() {
+    let (_server, _ep, gw) = deployment(|_| {});
+    let mut alice = Ws::connect(&gw);
+    alice.send(&hello("alice", "alice-secret", 1));
+    let ready = alice.ready(WAIT).expect("ready");
+    assert_eq!((ready["client"].as_u64(), ready["world"].as_str()), (Some(1), Some("arena")));
+    let (avatar, tick) = alice
+        .until(WAIT, |m| match m {
+            ServerMessage::Welcome(w) => Some((w.avatar.expect("arena spawns avatars"), w.tick)),
+            _ => None,
+        })
+        .expect("welcomed through the gateway");
+    alice.send_msg(&walk(1, 1, tick, avatar));
+    let acked = alice.until(WAIT, |m| match m {
+        ServerMessage::Ack(a) if a.seq == 1 => Some(true),
+        ServerMessage::Reject(r) if r.seq == Some(1) => Some(false),
+        _ => None,
+    });
+    assert_eq!(acked, Some(true), "the input is acked");
+    assert!(alice.until(WAIT, |m| matches!(m, ServerMessage::State(_)).then_some(())).is_some(), "state frames come");
+    alice.send(&json!({"type": "scene"}));
+    assert!(alice.until(WAIT, |m| matches!(m, ServerMessage::Scene(_)).then_some(())).is_some(), "the scene comes");
+    // A token does as well as a password.
+    let token = Secret::new(SECRET).unwrap().issue(&Grant {
+        client: ClientId(2),
+        world: WorldId::new("arena").unwrap(),
+        expires: unix_now() + 60,
+    });
+    let mut bob = Ws::connect(&gw);
+    bob.send(&json!({"type": "hello", "token": token}));
+    assert_eq!(bob.ready(WAIT).expect("ready")["client"], 2);
+    assert!(bob.until(WAIT, |m| matches!(m, ServerMessage::Welcome(_)).then_some(())).is_some());
+    let stats = gw.gateway.counters.snapshot();
+    assert!(stats.joined >= 2 && stats.messages_in >= 2 && stats.messages_out > 0, "{stats:?}");
+}
+
+/// Every refusal is a close with its code and reason.
+#[test]
+fn refusals_close_with_their_reason() {
+    let (_server, _ep, gw) = deployment(|c| {
+        c.hello_timeout = Duration::from_millis(500);
+        c.max_messages_per_s = 20;
+    });
+    let closed = |ws: &mut Ws| ws.closed(WAIT).expect("a close frame");
+    let code = |ws: &mut Ws| closed(ws).0;
+
+    let mut ws = Ws::connect(&gw);
+    ws.send(&hello("alice", "wrong", 1));
+    let (c, reason) = closed(&mut ws);
+    assert_eq!((c, reason.as_str()), (4001, "unauthorized: user or password wrong"));
+
+    let mut ws = Ws::connect(&gw);
+    ws.send(&hello("alice", "alice-secret", 2));
+    assert_eq!(code(&mut ws), 4001, "alice's password does not make her client 2");
+
+    let expired = Secret::new(SECRET).unwrap().issue(&Grant {
+        client: ClientId(2),
+        world: WorldId::new("arena").unwrap(),
+        expires: unix_now() - 1,
+    });
+    let mut ws = Ws::connect(&gw);
+    ws.send(&json!({"type": "hello", "token": expired}));
+    let (c, reason) = closed(&mut ws);
+    assert!(c == 4001 && reason.contains("expired"), "{c} {reason}");
+
+    let mut ws = Ws::connect(&gw);
+    assert_eq!(closed(&mut ws).0, 4002, "no hello in time");
+
+    let mut ws = Ws::connect(&gw);
+    ws.send_bytes(vec![0xc1, 0xff, 0x00]);
+    assert_eq!(code(&mut ws), 4000, "garbage for a hello");
+
+    let mut ws = Ws::connect(&gw);
+    ws.send(&json!({"type": "hello", "world": "nowhere", "client": 1, "user": "alice", "password": "alice-secret"}));
+    let (c, reason) = closed(&mut ws);
+    assert!(c == 4004 && reason.contains("nowhere"), "{c} {reason}");
+
+    // Playing, then: garbage, a text frame, a world command, too big, a flood.
+    let playing = |then: &dyn Fn(&mut Ws)| {
+        let mut ws = Ws::connect(&gw);
+        ws.send(&hello("alice", "alice-secret", 1));
+        ws.ready(WAIT).expect("ready");
+        then(&mut ws);
+        code(&mut ws)
+    };
+    assert_eq!(playing(&|ws| ws.send_bytes(vec![0x93, 1, 2, 3])), 4011);
+    assert_eq!(playing(&|ws| drop(ws.0.send(Message::Text("{}".into())))), 4011);
+    let world = json!({"type": "world", "command": "close"});
+    assert_eq!(playing(&|ws| ws.send(&world)), 4012);
+    assert_eq!(playing(&|ws| ws.send_bytes(vec![0; 8 * 1024])), 1009);
+    let ping = ClientMessage::Ping(impact_protocol::TimePing { client: ClientId(1), id: 1 });
+    assert_eq!(
+        playing(&|ws| {
+            for _ in 0..100 {
+                ws.send_msg(&ping);
+            }
+        }),
+        4029
+    );
+
+    // A second connection of a player replaces the first.
+    let mut first = Ws::connect(&gw);
+    first.send(&hello("bob", "bob-secret", 2));
+    first.ready(WAIT).expect("ready");
+    let mut second = Ws::connect(&gw);
+    second.send(&hello("bob", "bob-secret", 2));
+    assert_eq!(code(&mut first), 4030);
+    assert!(second.until(WAIT, |m| matches!(m, ServerMessage::Welcome(_)).then_some(())).is_some(), "the newer plays");
+
+    let closed_by = gw.gateway.counters.snapshot().closed;
+    for reason in [
+        "unauthorized",
+        "hello_timeout",
+        "bad_hello",
+        "no_server",
+        "malformed",
+        "not_allowed",
+        "too_big",
+        "flood",
+        "replaced",
+    ] {
+        assert!(closed_by.get(reason).is_some_and(|n| *n > 0), "{reason} counted: {closed_by:?}");
+    }
+}
+
+/// Another site's page is refused before the upgrade, and so is a connection past the limit.
+#[test]
+fn origins_and_the_connection_limit_are_enforced() {
+    let (_server, _ep, gw) = deployment(|c| {
+        c.max_connections = 2;
+        c.allow_origins = vec!["https://game.example".into()];
+    });
+    let status = |r: Result<Ws, tungstenite::Error>| match r {
+        Err(tungstenite::Error::Http(resp)) => Some(resp.status().as_u16()),
+        _ => None,
+    };
+    assert_eq!(status(Ws::connect_from(&gw, Some("https://evil.example"))), Some(403));
+    let own = format!("http://{}", gw.addr);
+    let _a = Ws::connect_from(&gw, Some(&own)).expect("its own page");
+    let _b = Ws::connect_from(&gw, Some("https://game.example")).expect("an allowed origin");
+    assert_eq!(status(Ws::connect_from(&gw, None)), Some(503), "past the limit");
+}
+
+/// The gateway publishes a player's inputs on that player's key only: mallory, logged in as
+/// herself, names alice in her input; the server hears it on mallory's key (it refuses it to
+/// mallory, `not_owner`: the body names another client), and answers nothing on alice's keys,
+/// as it would had the gateway published it on alice's key.
+#[test]
+fn a_player_publishes_only_as_itself() {
+    let (_server, ep, gw) = deployment(|_| {});
+    let world = WorldId::new("arena").unwrap();
+    let observer = client_as(&ep, Some(("srv", "srv-secret"))).expect("a peer of the deployment");
+    let alice_acks = Inbox::new(&observer, keys::CLIENT_ACK.key(&world, Some(ClientId(1))));
+    let mut mallory = Ws::connect(&gw);
+    mallory.send(&hello("mallory", "mallory-secret", 3));
+    let (avatar, tick) = mallory
+        .until(WAIT, |m| match m {
+            ServerMessage::Welcome(w) => Some((w.avatar.unwrap(), w.tick)),
+            _ => None,
+        })
+        .expect("welcomed");
+    mallory.send_msg(&walk(1, 77, tick, avatar));
+    let refused = mallory.until(WAIT, |m| match m {
+        ServerMessage::Reject(r) if r.seq == Some(77) => Some(r.reason),
+        _ => None,
+    });
+    assert_eq!(refused, Some(impact_protocol::RejectReason::NotOwner), "heard on mallory's key");
+    assert!(alice_acks.wait_for(Duration::from_secs(1), |m| answers(m, 77).then_some(())).is_none());
+}
