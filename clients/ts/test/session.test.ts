@@ -1,0 +1,177 @@
+// The session as a game meets it, with scripted server messages: join, time sync, inputs stamped
+// ahead and answered, copies of unanswered inputs, acks recovered, inputs known lost after a
+// second welcome, the event view, state streams drawn, the own avatar predicted and corrected
+// without a jump, a gap answered by a full-frame request.
+
+import { test } from "node:test";
+import assert from "node:assert/strict";
+import { Session, sessionConfig, SYNC_PROBES } from "../src/session.js";
+import type { CollisionEvent, ServerMessage, StateFrame } from "../src/messages.js";
+
+const ME = 7;
+const AVATAR = 3;
+
+const welcome = (tick: number, nextSeq: number): ServerMessage => ({
+  type: "welcome",
+  client: ME,
+  avatar: AVATAR,
+  tick,
+  tick_hz: 64,
+  window_ticks: 16,
+  input_lead_ticks: 4,
+  max_rewind_ticks: 16,
+  next_seq: nextSeq,
+  scene_hash: 0n,
+});
+
+/** A session welcomed at tick 100 (t = 0) and synced with pongs 50 ms after each ping. */
+function playing(): Session {
+  const s = new Session(sessionConfig(ME));
+  s.receive(welcome(100, 1), 0);
+  assert.equal(s.status, "syncing");
+  let now = 0;
+  for (let k = 0; k < SYNC_PROBES; k++) {
+    const ping = s.pollTransmit(now);
+    assert.equal(ping?.type, "ping");
+    now += 50;
+    s.receive({ type: "pong", client: ME, id: (ping as { id: number }).id, server_tick: 100 + Math.round((now / 1000) * 64) }, now);
+  }
+  assert.equal(s.status, "playing");
+  return s;
+}
+
+const ack = (seq: number, acceptedBefore = 0n): ServerMessage => ({
+  type: "ack",
+  client: ME,
+  seq,
+  tick: 0,
+  applied_tick: 0,
+  server_tick: 117,
+  margin_ticks: 2,
+  lead_ticks: 5,
+  accepted_before: acceptedBefore,
+});
+
+const walk = (x: number) => [{ type: "set_velocity" as const, entity: AVATAR, velocity: [x, 0, 0] as [number, number, number] }];
+
+test("joining syncs the clock and takes the slowest round trip as the first lead", () => {
+  const s = playing();
+  assert.equal(s.stats.syncRttMaxMs, 50);
+  assert.equal(s.clock.lead, Math.ceil(0.05 * 64) + 1);
+  assert.equal(s.pollTransmit(250), null, "nothing more to send");
+});
+
+test("inputs are stamped ahead, sent with the unanswered before them, and answered by seq", () => {
+  const s = playing();
+  const a = s.input(walk(1), 260);
+  const first = s.pollTransmit(260);
+  assert.equal(first?.type, "input");
+  const view = s.clock.serverTick(260)!;
+  assert.deepEqual([(first as { seq: number }).seq, (first as { tick: number }).tick, (first as { view_tick: number }).view_tick], [a, view + 5, view]);
+  const b = s.input(walk(2), 270);
+  const second = s.pollTransmit(270);
+  assert.equal(second?.type, "inputs", "the unanswered input goes again with the new one");
+  assert.deepEqual((second as { inputs: { seq: number }[] }).inputs.map((i) => i.seq), [a, b]);
+  // b's ack says a was accepted too (bit 0: b - 1).
+  s.receive(ack(b, 1n), 300);
+  const answers = s.takeAnswers();
+  assert.deepEqual(answers.map((x) => [x.seq, x.outcome.kind]), [[b, "accepted"], [a, "ack_lost"]]);
+  assert.equal(s.pendingInputs, 0);
+  s.receive(ack(b), 310);
+  assert.equal(s.stats.unmatchedAnswers, 1, "answered once");
+});
+
+test("an input the server never accepted is known lost: by a later ack, or after a second welcome", () => {
+  const s = playing();
+  const a = s.input(walk(1), 260);
+  s.pollTransmit(260);
+  const b = s.input(walk(2), 400); // a is carried again with b...
+  s.pollTransmit(400);
+  const c = s.input([], 500); // ...and with c: a later ack without a's bit only counts if nothing carried a after
+  s.pollTransmit(500);
+  s.receive(ack(c, 0b01n), 600); // b accepted, a not: a was carried with c, so not yet known lost
+  assert.deepEqual(s.takeAnswers().map((x) => [x.seq, x.outcome.kind]), [[c, "accepted"], [b, "ack_lost"]]);
+  assert.equal(s.pendingInputs, 1);
+  // The connection drops and comes back: the server accepted nothing at or after a.
+  s.receive(welcome(150, a), 700);
+  assert.equal(s.pendingInputs, 1, "not before a round trip");
+  s.pollTransmit(2000);
+  assert.deepEqual(s.takeAnswers().map((x) => [x.seq, x.outcome.kind]), [[a, "lost"]]);
+  assert.equal(s.stats.inputsLost, 1);
+  assert.equal(s.input([], 2100), c + 1, "numbers go on");
+});
+
+const event = (tick: number, toi = 0.5): CollisionEvent => ({
+  tick,
+  toi,
+  a: 1,
+  b: 2,
+  point: [0, 0, 0],
+  normal: [1, 0, 0],
+  depth_m: 0,
+  closing_speed_mps: 1,
+  phase: "begin",
+  response: "bounce",
+  status: "provisional",
+});
+
+test("the event view compares confirmed ticks, and leaves out those a lost link passed", () => {
+  const s = playing();
+  s.receive({ type: "events", tick: 110, revision: 0, events: [event(110)] }, 300);
+  s.receive({ type: "confirmed", tick: 110, revision: 0, events: [event(110)] }, 310);
+  s.receive({ type: "events", tick: 111, revision: 0, events: [event(111)] }, 320);
+  s.receive({ type: "corrections", tick: 111, revision: 1, retracted: [], amended: [event(111, 0.25)], added: [] }, 330);
+  s.receive({ type: "confirmed", tick: 111, revision: 1, events: [event(111, 0.25)] }, 340);
+  s.receive({ type: "confirmed", tick: 112, revision: 0, events: [event(112)] }, 350);
+  const confirmed = s.takeEventNews().filter((n) => n.kind === "confirmed");
+  assert.deepEqual(confirmed.map((n) => n.kind === "confirmed" && [n.tick, n.matched]), [[110, true], [111, true], [112, false]]);
+  s.linkRestored(400);
+  s.receive({ type: "confirmed", tick: 113, revision: 0, events: [event(113)] }, 410);
+  assert.equal(s.events.unverified, 1, "a tick the lost link passed is taken as it is");
+  assert.equal(s.events.mismatched, 1);
+});
+
+const frame = (n: number, tick: number, full: boolean, x: number, vx: number, avatar?: [number, number]): StateFrame => ({
+  tick,
+  frame: n,
+  full,
+  entered: full
+    ? [{ entity: 1, class: "ball", owner: null, shape: "sphere", half_extents_m: [0.5, 0.5, 0.5], offset_m: [0, 0, 0], fixed: false }]
+    : [],
+  moved: [[1, [x, 0, 0], [vx, 0, 0], false]],
+  left: [],
+  deferred: 0,
+  centre: null,
+  ...(avatar ? { avatar: { entity: AVATAR, position: [avatar[0], 0, 0], velocity: [avatar[1], 0, 0], asleep: false, still_ticks: 0, touching: [], class: null } } : {}),
+});
+
+test("state frames are drawn at the render tick, and a gap asks for a full frame", () => {
+  const s = playing();
+  s.receive({ type: "state", ...frame(0, 110, true, 0, 6.4) }, 300);
+  s.receive({ type: "state", ...frame(1, 120, false, 1, 6.4) }, 310);
+  const r = s.renderTick(310)!;
+  const [ball] = s.drawRemote(310);
+  assert.ok(ball && Math.abs(ball.position[0] - ((r - 110) * 6.4) / 64) < 1e-9, "on its path at the render tick");
+  assert.equal(ball?.steady, true);
+  s.receive({ type: "state", ...frame(5, 130, false, 2, 6.4) }, 320);
+  assert.equal(s.remote?.needsFullFrame, true);
+  assert.equal(s.pollTransmit(330)?.type, "full_frame");
+  assert.equal(s.pollTransmit(340), null, "not again at once");
+});
+
+test("the own avatar is predicted from its inputs and corrected without a jump", () => {
+  const s = playing();
+  s.receive({ type: "state", ...frame(0, 110, true, 0, 0, [0, 0]) }, 300);
+  s.input(walk(6.4), 300);
+  const p1 = s.drawAvatar(300 + 500)!;
+  assert.ok(p1[0] > 2.5, `moving at 6.4 m/s: ${p1[0]}`);
+  // The server had it 0.5 m behind the prediction: drawn where it was, then eased there.
+  const tick = s.clock.serverTick(800)!;
+  const predicted = ((tick + 5 - 110 - 5) * 6.4) / 64; // from the input's tick on
+  s.receive({ type: "state", ...frame(1, tick, false, 0, 0, [predicted - 0.5, 6.4]) }, 800);
+  const p2 = s.drawAvatar(800)!;
+  assert.ok(Math.abs(p2[0] - p1[0]) < 1e-6, `no jump: ${p1[0]} -> ${p2[0]}`);
+  const later = s.drawAvatar(1800)!;
+  const truth = predicted - 0.5 + 6.4 * ((s.clock.serverTicks(1800)! + 5 - tick) / 64);
+  assert.ok(Math.abs(later[0] - truth) < 1e-3, `converged: ${later[0]} vs ${truth}`);
+});
