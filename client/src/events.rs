@@ -1,7 +1,9 @@
 //! The event view: a client's collision events as they stand. Provisional `events` batches are
 //! applied as they come, then `corrections` by event identity (PROTOCOL.md, "Collision event"), and
 //! when a tick is confirmed its view is compared with the confirmed batch and the tick leaves the
-//! view. A game reads a tick's events as they stand with [`EventView::at`]; what it already showed
+//! view, with every earlier tick still held: confirmations come in tick order, and a client's own
+//! stream carries a tick's batch only when one of its confirmed events involves the client, so an
+//! earlier tick with no batch of its own is final with no events for it. A game reads a tick's events as they stand with [`EventView::at`]; what it already showed
 //! and is corrected, it redraws.
 //!
 //! Bounded: at most [`MAX_TICKS`] ticks are held. The server confirms each tick once it leaves its
@@ -29,6 +31,10 @@ pub struct EventView {
     /// Confirmed ticks not compared, because the link was lost before them (see
     /// [`EventView::lost_before`]): taken from the confirmed batch as they are.
     pub unverified: u64,
+    /// Ticks made final by a later tick's confirmation, with no batch of their own (also counted
+    /// in `matched`, `mismatched` or `unverified`): a view that held events for such a tick
+    /// missed their retraction or their confirmation.
+    pub implied: u64,
     /// Ticks before this one may have lost provisional events or corrections to a lost link.
     lost_before: Option<Tick>,
 }
@@ -78,16 +84,31 @@ impl EventView {
         self.lost_before = self.lost_before.max(Some(tick));
     }
 
-    /// Compares the view of a confirmed tick with the batch and forgets the tick. Returns
-    /// whether they were equal (`false` for a tick the link was lost before: take the batch).
-    pub fn confirm(&mut self, b: &EventBatch) -> bool {
+    /// Compares the view of a confirmed tick with the batch and forgets the tick, after every
+    /// earlier tick still held: those are final with no events for this client (see the module
+    /// notes) and compared with an empty batch. `each(tick, matched)` hears every tick made final,
+    /// oldest first, `matched` being whether the view equalled the server's record (`false` for a
+    /// tick the link was lost before: take the batch).
+    pub fn confirm(&mut self, b: &EventBatch, mut each: impl FnMut(Tick, bool)) {
+        while let Some(entry) = self.ticks.first_entry().filter(|e| *e.key() < b.tick) {
+            let (tick, mine) = entry.remove_entry();
+            self.implied += 1;
+            let matched = self.compare(tick, &mine, &[]);
+            each(tick, matched);
+        }
         let mine = self.ticks.remove(&b.tick).unwrap_or_default();
-        if self.lost_before.is_some_and(|t| b.tick < t) {
+        let matched = self.compare(b.tick, &mine, &b.events);
+        each(b.tick, matched);
+    }
+
+    /// Counts and returns whether a final tick's view equals its confirmed events.
+    fn compare(&mut self, tick: Tick, mine: &BTreeMap<EventKey, CollisionEvent>, confirmed: &[CollisionEvent]) -> bool {
+        if self.lost_before.is_some_and(|t| tick < t) {
             self.unverified += 1;
             return false;
         }
         let ok =
-            mine.len() == b.events.len() && b.events.iter().all(|e| mine.get(&e.key()).is_some_and(|m| same(m, e)));
+            mine.len() == confirmed.len() && confirmed.iter().all(|e| mine.get(&e.key()).is_some_and(|m| same(m, e)));
         if ok {
             self.matched += 1;
         } else {
@@ -117,6 +138,13 @@ impl EventView {
 pub(crate) mod tests {
     use super::*;
     use impact_protocol::{EntityId, EventStatus, Phase, Response};
+
+    /// The ticks a confirmation made final, with whether each matched.
+    fn finals(v: &mut EventView, tick: u32, events: Vec<CollisionEvent>) -> Vec<(u32, bool)> {
+        let mut out = Vec::new();
+        v.confirm(&EventBatch { tick: Tick(tick), revision: 0, events }, |t, m| out.push((t.0, m)));
+        out
+    }
 
     pub(crate) fn event(a: u32, b: u32, toi: f64) -> CollisionEvent {
         CollisionEvent {
@@ -149,10 +177,10 @@ pub(crate) mod tests {
             added: vec![],
         });
         assert_eq!(v.at(Tick(5)).collect::<Vec<_>>(), vec![&amended]);
-        assert!(v.confirm(&EventBatch { tick: Tick(5), revision: 1, events: vec![amended] }));
+        assert_eq!(finals(&mut v, 5, vec![amended]), [(5, true)]);
         assert_eq!((v.held(), v.matched, v.corrections), (0, 1, 1));
         v.events(&EventBatch { tick: Tick(6), revision: 0, events: vec![event(1, 2, 0.5)] });
-        assert!(!v.confirm(&EventBatch { tick: Tick(6), revision: 0, events: vec![] }));
+        assert_eq!(finals(&mut v, 6, vec![]), [(6, false)]);
         assert_eq!(v.mismatched, 1);
     }
 
@@ -163,16 +191,13 @@ pub(crate) mod tests {
     fn ticks_before_a_lost_link_came_back_are_not_compared() {
         let mut v = EventView::default();
         v.lost_before(Tick(10));
-        assert!(!v.confirm(&EventBatch { tick: Tick(9), revision: 0, events: vec![event(1, 2, 0.5)] }));
+        assert_eq!(finals(&mut v, 9, vec![event(1, 2, 0.5)]), [(9, false)]);
         assert_eq!((v.matched, v.mismatched, v.unverified), (0, 0, 1));
         v.events(&EventBatch { tick: Tick(10), revision: 0, events: vec![event(1, 2, 0.5)] });
-        assert!(!v.confirm(&EventBatch { tick: Tick(10), revision: 0, events: vec![] }));
+        assert_eq!(finals(&mut v, 10, vec![]), [(10, false)]);
         assert_eq!((v.matched, v.mismatched, v.unverified), (0, 1, 1));
         v.lost_before(Tick(4));
-        assert!(
-            !v.confirm(&EventBatch { tick: Tick(9), revision: 0, events: vec![] }),
-            "an earlier loss moves nothing"
-        );
+        assert_eq!(finals(&mut v, 9, vec![]), [(9, false)], "an earlier loss moves nothing");
         assert_eq!(v.unverified, 2);
     }
 
@@ -184,5 +209,43 @@ pub(crate) mod tests {
             v.events(&EventBatch { tick: Tick(t), revision: 0, events: vec![] });
         }
         assert_eq!((v.held(), v.forgotten), (MAX_TICKS, 10));
+    }
+
+    /// A tick whose events were all retracted gets no confirmation of its own on the client's
+    /// stream: the next confirmation makes it final (matched: the view is empty, as the record),
+    /// and a tick whose view still held an event nobody confirmed is a mismatch. Nothing is held
+    /// after, so a long match's views stay small.
+    #[test]
+    fn a_confirmation_makes_every_earlier_tick_final() {
+        let mut v = EventView::default();
+        v.events(&EventBatch { tick: Tick(3), revision: 0, events: vec![event(1, 2, 0.5)] });
+        v.correct(&CorrectionBatch {
+            tick: Tick(3),
+            revision: 1,
+            retracted: vec![event(1, 2, 0.5)],
+            amended: vec![],
+            added: vec![],
+        });
+        v.events(&EventBatch { tick: Tick(4), revision: 0, events: vec![event(3, 4, 0.5)] });
+        v.events(&EventBatch { tick: Tick(5), revision: 0, events: vec![event(1, 2, 0.25)] });
+        v.events(&EventBatch { tick: Tick(7), revision: 0, events: vec![event(1, 2, 0.75)] });
+        assert_eq!(finals(&mut v, 5, vec![event(1, 2, 0.25)]), [(3, true), (4, false), (5, true)]);
+        assert_eq!((v.held(), v.matched, v.mismatched, v.implied), (1, 2, 1, 2));
+        assert_eq!(v.newest(), Some(Tick(7)), "later ticks stay");
+        for t in 8..(8 + 3 * MAX_TICKS as u32) {
+            v.events(&EventBatch { tick: Tick(t), revision: 0, events: vec![event(1, 2, 0.5)] });
+            v.correct(&CorrectionBatch {
+                tick: Tick(t),
+                revision: 1,
+                retracted: vec![event(1, 2, 0.5)],
+                amended: vec![],
+                added: vec![],
+            });
+            if t % 16 == 0 {
+                finals(&mut v, t, vec![]);
+                assert_eq!(v.held(), 0);
+            }
+        }
+        assert_eq!((v.forgotten, v.mismatched), (0, 2), "tick 7's event was never confirmed");
     }
 }

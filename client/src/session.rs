@@ -78,12 +78,23 @@ pub enum EventNews {
     /// what it showed; events match by identity, [`CollisionEvent::key`]).
     Corrected(CorrectionBatch),
     /// A tick is final; `matched` says whether the view as it stood equalled the server's record.
+    /// Every tick the view held hears this once, in tick order: a tick with no confirmed batch of
+    /// its own (none of its final events involve this client) is final when a later one is.
     Confirmed {
         /// The tick.
         tick: Tick,
         /// The view equalled the confirmed batch.
         matched: bool,
     },
+}
+
+/// Queues news under [`MAX_EVENT_NEWS`], dropping (and counting) the oldest.
+fn push_news(news: &mut VecDeque<EventNews>, dropped: &mut u64, n: EventNews) {
+    if news.len() >= MAX_EVENT_NEWS {
+        news.pop_front();
+        *dropped += 1;
+    }
+    news.push_back(n);
 }
 
 /// The server's answer to one of the client's inputs ([`Session::take_answers`]).
@@ -639,11 +650,7 @@ impl Session {
     }
 
     fn news(&mut self, n: EventNews) {
-        if self.news.len() >= MAX_EVENT_NEWS {
-            self.news.pop_front();
-            self.stats.event_news_dropped += 1;
-        }
-        self.news.push_back(n);
+        push_news(&mut self.news, &mut self.stats.event_news_dropped, n);
     }
 
     fn answered(&mut self, seq: u32, sent: Sent, outcome: Outcome, now: Instant) {
@@ -810,8 +817,9 @@ impl Session {
                 self.news(EventNews::Corrected(c));
             }
             ServerMessage::Confirmed(b) => {
-                let matched = self.events.confirm(&b);
-                self.news(EventNews::Confirmed { tick: b.tick, matched });
+                let (news, dropped) = (&mut self.news, &mut self.stats.event_news_dropped);
+                self.events
+                    .confirm(&b, |tick, matched| push_news(news, dropped, EventNews::Confirmed { tick, matched }));
             }
             ServerMessage::RayResult(r) if r.client == me => {
                 self.stats.ray_results += 1;
@@ -1136,8 +1144,9 @@ mod tests {
         s.receive(held(101), t0);
         s.link_restored(t0);
         // Tick 102's events were published while the link was down: the view never had them.
+        // Its confirmation makes tick 101 final too, and 101 was as exposed to the outage.
         s.receive(batch(102), t0);
-        assert_eq!((s.events().mismatched, s.events().unverified), (0, 1));
+        assert_eq!((s.events().mismatched, s.events().unverified), (0, 2));
         s.receive(batch(130), t0);
         assert_eq!(s.events().matched, 1, "a tick after the link came back is compared");
     }
@@ -1162,8 +1171,9 @@ mod tests {
         s.link_restored(t);
         // The server was at 164 two seconds before: about 292 now. Tick 250 was published
         // while the link was down.
+        // Ticks 164 and 170, held, are final with it: all three uncompared.
         s.receive(confirmed(250), t);
-        assert_eq!((s.events().matched, s.events().unverified), (0, 1));
+        assert_eq!((s.events().matched, s.events().unverified), (0, 3));
     }
 
     /// Joins, probes one at a time, and plays once five answers came: the first lead is the

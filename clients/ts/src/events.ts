@@ -1,7 +1,10 @@
 // The event view (a port of the Rust client library's `events`): a client's collision events as
 // they stand. Provisional `events` batches apply as they come, then `corrections` by event
 // identity (tick, a, b, phase); when a tick is confirmed its view is compared with the confirmed
-// batch and the tick leaves the view. Bounded: at most MAX_TICKS ticks held.
+// batch and the tick leaves the view, with every earlier tick still held: confirmations come in
+// tick order, and a client's own stream carries a tick's batch only when one of its confirmed
+// events involves the client, so an earlier tick with no batch of its own is final with no events
+// for it. Bounded: at most MAX_TICKS ticks held.
 
 import type { CollisionEvent, CorrectionBatch, EventBatch } from "./messages.js";
 
@@ -26,6 +29,9 @@ export class EventView {
   forgotten = 0;
   /** Confirmed ticks not compared because the link was lost before them. */
   unverified = 0;
+  /** Ticks made final by a later tick's confirmation, with no batch of their own (also counted in
+   * matched, mismatched or unverified). */
+  implied = 0;
   private lostBeforeTick: number | null = null;
 
   private tick(tick: number): Map<string, CollisionEvent> {
@@ -58,15 +64,30 @@ export class EventView {
     this.lostBeforeTick = Math.max(this.lostBeforeTick ?? tick, tick);
   }
 
-  /** Compares a confirmed tick with the view and forgets it: whether they were equal. */
-  confirm(b: EventBatch): boolean {
-    const mine = this.ticks.get(b.tick) ?? new Map<string, CollisionEvent>();
-    this.ticks.delete(b.tick);
-    if (this.lostBeforeTick !== null && b.tick < this.lostBeforeTick) {
+  /** Makes a confirmed tick final, after every earlier tick still held (compared with no events):
+   * each tick made final, oldest first, with whether the view equalled the server's record. */
+  confirm(b: EventBatch): Array<{ tick: number; matched: boolean }> {
+    const finals: Array<{ tick: number; matched: boolean }> = [];
+    for (const tick of [...this.ticks.keys()].filter((t) => t < b.tick).sort((x, y) => x - y)) {
+      this.implied++;
+      finals.push({ tick, matched: this.compare(tick, this.take(tick), []) });
+    }
+    finals.push({ tick: b.tick, matched: this.compare(b.tick, this.take(b.tick), b.events) });
+    return finals;
+  }
+
+  private take(tick: number): Map<string, CollisionEvent> {
+    const mine = this.ticks.get(tick) ?? new Map<string, CollisionEvent>();
+    this.ticks.delete(tick);
+    return mine;
+  }
+
+  private compare(tick: number, mine: Map<string, CollisionEvent>, confirmed: CollisionEvent[]): boolean {
+    if (this.lostBeforeTick !== null && tick < this.lostBeforeTick) {
       this.unverified++;
       return false;
     }
-    const ok = mine.size === b.events.length && b.events.every((e) => {
+    const ok = mine.size === confirmed.length && confirmed.every((e) => {
       const m = mine.get(key(e));
       return m !== undefined && same(m, e);
     });

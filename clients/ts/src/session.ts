@@ -205,7 +205,7 @@ export class Session {
         this.pushNews({ kind: "corrected", batch: msg });
         return;
       case "confirmed":
-        this.pushNews({ kind: "confirmed", tick: msg.tick, matched: this.events.confirm(msg) });
+        for (const f of this.events.confirm(msg)) this.pushNews({ kind: "confirmed", ...f });
         return;
       case "ray_result":
         if (msg.client !== me) return;

@@ -6,6 +6,7 @@
 import { test } from "node:test";
 import assert from "node:assert/strict";
 import { Session, sessionConfig, SYNC_PROBES } from "../src/session.js";
+import { MAX_TICKS } from "../src/events.js";
 import type { CollisionEvent, ServerMessage, StateFrame } from "../src/messages.js";
 
 const ME = 7;
@@ -129,6 +130,29 @@ test("the event view compares confirmed ticks, and leaves out those a lost link 
   s.receive({ type: "confirmed", tick: 113, revision: 0, events: [event(113)] }, 410);
   assert.equal(s.events.unverified, 1, "a tick the lost link passed is taken as it is");
   assert.equal(s.events.mismatched, 1);
+});
+
+test("a confirmation makes every earlier tick final, so a long match holds nothing", () => {
+  const s = playing();
+  s.receive({ type: "events", tick: 103, revision: 0, events: [event(103)] }, 300);
+  s.receive({ type: "corrections", tick: 103, revision: 1, retracted: [event(103)], amended: [], added: [] }, 301);
+  s.receive({ type: "events", tick: 104, revision: 0, events: [event(104)] }, 302);
+  s.receive({ type: "events", tick: 105, revision: 0, events: [event(105)] }, 303);
+  s.receive({ type: "events", tick: 107, revision: 0, events: [event(107)] }, 304);
+  s.takeEventNews();
+  // Tick 103's only event was retracted, so no batch of its own comes; 104's retraction was lost.
+  s.receive({ type: "confirmed", tick: 105, revision: 0, events: [event(105)] }, 310);
+  const finals = s.takeEventNews().map((n) => n.kind === "confirmed" && [n.tick, n.matched]);
+  assert.deepEqual(finals, [[103, true], [104, false], [105, true]]);
+  assert.deepEqual([s.events.held, s.events.implied, s.events.newest()], [1, 2, 107]);
+  for (let t = 108; t < 108 + 3 * MAX_TICKS; t++) {
+    s.receive({ type: "events", tick: t, revision: 0, events: [event(t)] }, 400);
+    s.receive({ type: "corrections", tick: t, revision: 1, retracted: [event(t)], amended: [], added: [] }, 400);
+    if (t % 16 === 0) s.receive({ type: "confirmed", tick: t, revision: 0, events: [] }, 400);
+    s.takeEventNews();
+  }
+  assert.ok(s.events.held <= 16, `${s.events.held} ticks held`);
+  assert.deepEqual([s.events.forgotten, s.events.mismatched], [0, 2], "tick 107's event was never confirmed");
 });
 
 const frame = (n: number, tick: number, full: boolean, x: number, vx: number, avatar?: [number, number]): StateFrame => ({
