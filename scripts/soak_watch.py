@@ -62,12 +62,14 @@ class Confirmed:
     with the first, kept for the last KEPT ticks."""
 
     KEPT = 4096
+    GAPS = 100
 
     def __init__(self):
         self.digests, self.highest, self.ticks = {}, None, 0
         self.missing, self.repeated, self.changed = 0, 0, 0
+        self.gaps = []  # (seconds into the run, first missing tick, ticks missing), the first GAPS
 
-    def heard(self, tick, events):
+    def heard(self, tick, events, t_s=0.0):
         d = hashlib.sha1(msgpack.packb(events)).hexdigest()
         if self.highest is not None and tick <= self.highest:
             old = self.digests.get(tick)
@@ -75,8 +77,12 @@ class Confirmed:
                 self.repeated += 1
                 self.changed += old != d
             return
-        if self.highest is not None:
+        if self.highest is not None and tick > self.highest + 1:
             self.missing += tick - self.highest - 1
+            if len(self.gaps) < self.GAPS:
+                self.gaps.append((t_s, self.highest + 1, tick - self.highest - 1))
+            print(f"  {t_s / 60:5.1f} min: confirmed ticks {self.highest + 1}..{tick - 1} missing",
+                  file=sys.stderr, flush=True)
         self.highest, self.ticks = tick, self.ticks + 1
         self.digests[tick] = d
         while len(self.digests) > self.KEPT:
@@ -176,7 +182,7 @@ def main():
     def on_confirmed(sample):
         b = msgpack.unpackb(sample.payload.to_bytes(), raw=False)
         with lock:
-            confirmed.heard(b["tick"], b.get("events", []))
+            confirmed.heard(b["tick"], b.get("events", []), round(time.time() - t0, 1))
 
     subs = [session.declare_subscriber(f"impact/v1/{args.world}/stats", on_stats)]
     if args.confirmed:
@@ -261,7 +267,8 @@ def main():
     }
     if args.confirmed:
         result.update({"confirmed_ticks": confirmed.ticks, "confirmed_missing": confirmed.missing,
-                       "confirmed_repeated": confirmed.repeated, "confirmed_changed": confirmed.changed})
+                       "confirmed_repeated": confirmed.repeated, "confirmed_changed": confirmed.changed,
+                       "confirmed_gaps": [{"t_s": t, "from_tick": a, "ticks": n} for t, a, n in confirmed.gaps]})
         print(f"  confirmed ticks heard {confirmed.ticks}: missing {confirmed.missing}, "
               f"published twice {confirmed.repeated} (changed {confirmed.changed})")
     print(f"  tick p99 after warm-up: median {result['tick_ms_p99_median']:.2f} ms, worst second "
