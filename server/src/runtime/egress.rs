@@ -2,11 +2,7 @@
 //! tick thread, which only moves each message into the queue), each key through a publisher it
 //! declared once. Publishing uses congestion control
 //! `Drop`, so a slow subscriber loses its own messages and never holds anyone back; the input
-//! log alone uses `Block`, because a standby that missed an entry has to start over. Everything
-//! here goes at priority `DataHigh`, above the state frames (`Data`, the state thread's): frames
-//! are the bulk and a later one supersedes them, so when a link backs up (a starved router, a slow
-//! subscriber) they queue and drop first, and answers, events and confirmed batches, which nothing
-//! supersedes, get through in their own queue. Each message
+//! log alone uses `Block`, because a standby that missed an entry has to start over. Each message
 //! carries the world's epoch as its attachment, and nothing goes out while the world is held or
 //! fenced ([`Owner`]).
 
@@ -66,7 +62,6 @@ struct Publishers<'a> {
 
 impl<'a> Publishers<'a> {
     fn new(session: &'a zenoh::Session, congestion: zenoh::qos::CongestionControl) -> Publishers<'a> {
-        // One priority for all of them: messages on a key keep their order only within one.
         Publishers { session, congestion, by_key: std::collections::HashMap::new() }
     }
 
@@ -76,12 +71,7 @@ impl<'a> Publishers<'a> {
             if self.by_key.len() >= PUBLISHERS {
                 self.by_key.clear();
             }
-            let declared = self
-                .session
-                .declare_publisher(key.clone())
-                .congestion_control(self.congestion)
-                .priority(zenoh::qos::Priority::DataHigh)
-                .wait();
+            let declared = self.session.declare_publisher(key.clone()).congestion_control(self.congestion).wait();
             match declared {
                 Ok(p) => {
                     self.by_key.insert(key.clone(), p);

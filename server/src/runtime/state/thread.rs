@@ -38,10 +38,7 @@ pub fn run(
 ) {
     use zenoh::Wait;
     let drop = zenoh::qos::CongestionControl::Drop;
-    // Priority `Data`, below everything else the server publishes (the egress's `DataHigh`): under
-    // congestion, frames are what queues and drops (a later frame supersedes them).
-    let data = zenoh::qos::Priority::Data;
-    let publisher = |key: String| session.declare_publisher(key).congestion_control(drop).priority(data).wait().ok();
+    let publisher = |key: String| session.declare_publisher(key).congestion_control(drop).wait().ok();
     let world_publisher = publisher(keys::STATE.key(&world, None));
     let mut listeners: BTreeMap<ClientId, Listener> = BTreeMap::new();
     let check_every = u64::from(opts.hz.max(1));
