@@ -1,9 +1,10 @@
 //! The gateway: its settings, the players it relays, and the HTTP side that turns a request
-//! into a WebSocket connection (`GET /ws`) after the origin check and the connection limit, and
-//! serves its counters (`GET /stats`).
+//! into a WebSocket connection (`GET /ws`) after the origin check and the connection limit,
+//! serves its counters (`GET /stats`) and the play page ([`crate::page`]).
 
 use crate::auth::{Authenticator, Player};
 use crate::outbox::Mailbox;
+use crate::page::{self, GuestPolicy};
 use crate::relay::{Link, Relay};
 use crate::stats::Counters;
 use crate::wire::{encode_notice, Close, Notice};
@@ -11,10 +12,10 @@ use axum::extract::ws::WebSocketUpgrade;
 use axum::extract::State;
 use axum::http::{HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
-use axum::routing::get;
+use axum::routing::{get, post};
 use impact_protocol::{ClientId, WorldId};
 use std::collections::BTreeMap;
-use std::sync::atomic::Ordering::Relaxed;
+use std::sync::atomic::{AtomicU32, Ordering::Relaxed};
 use std::sync::{Arc, Mutex, Weak};
 use std::time::Duration;
 
@@ -41,6 +42,8 @@ pub struct Config {
     pub outbox_bytes: usize,
     /// Time the browser has to take one batch of messages before it is closed `too_slow`.
     pub write_timeout: Duration,
+    /// Guests: pages without credentials get a token at `POST /guest` (needs `auth.secret`).
+    pub guests: Option<GuestPolicy>,
 }
 
 impl Default for Config {
@@ -57,6 +60,7 @@ impl Default for Config {
             outbox_messages: 256,
             outbox_bytes: 1 << 20,
             write_timeout: Duration::from_secs(5),
+            guests: None,
         }
     }
 }
@@ -80,6 +84,8 @@ pub struct Gateway {
     /// Its counters.
     pub counters: Arc<Counters>,
     players: Mutex<BTreeMap<(WorldId, ClientId), Relayed>>,
+    /// Guest tokens issued (the next guest's offset from the first guest id).
+    pub(crate) guests_issued: AtomicU32,
 }
 
 impl Gateway {
@@ -90,6 +96,7 @@ impl Gateway {
             relay: Relay::new(session),
             counters: Arc::new(Counters::default()),
             players: Mutex::new(BTreeMap::new()),
+            guests_issued: AtomicU32::new(0),
         })
     }
 
@@ -161,9 +168,16 @@ pub fn origin_allowed(allow: &[String], origin: Option<&str>, host: Option<&str>
     own || allow.iter().any(|o| o == "*" || o == origin)
 }
 
-/// The HTTP routes: `/ws` (the WebSocket binding) and `/stats`.
+/// The HTTP routes: `/ws` (the WebSocket binding), `/stats`, and the play page (`/`, `/play.js`,
+/// `POST /guest`; [`crate::page`]).
 pub fn router(gw: Arc<Gateway>) -> axum::Router {
-    axum::Router::new().route("/ws", get(upgrade)).route("/stats", get(stats)).with_state(gw)
+    axum::Router::new()
+        .route("/ws", get(upgrade))
+        .route("/stats", get(stats))
+        .route("/", get(page::index))
+        .route("/play.js", get(page::script))
+        .route("/guest", post(page::guest))
+        .with_state(gw)
 }
 
 async fn stats(State(gw): State<Arc<Gateway>>) -> Response {

@@ -16,12 +16,14 @@
 //! - [`relay`]: the Zenoh side, each player's declarations on its own keys, owner epochs.
 //! - [`conn`]: one connection from hello to close.
 //! - [`gateway`]: the settings, the players relayed, the HTTP routes (`/ws`, `/stats`).
+//! - [`page`]: the play page compiled in (`/`, `/play.js`) and guest tokens (`POST /guest`).
 //! - [`stats`]: the counters.
 
 pub mod auth;
 pub mod conn;
 pub mod gateway;
 pub mod outbox;
+pub mod page;
 pub mod relay;
 pub mod stats;
 pub mod token;

@@ -77,6 +77,14 @@ impl Secret {
         Ok(Secret(trimmed.to_vec()))
     }
 
+    /// A fresh random secret (the operating system's randomness): for guest tokens when no
+    /// secret is shared with a backend. Gone when the gateway stops, with the tokens it signed.
+    pub fn random() -> std::io::Result<Secret> {
+        let mut bytes = [0u8; MIN_SECRET_BYTES];
+        getrandom::fill(&mut bytes).map_err(|e| std::io::Error::other(format!("no randomness for a secret: {e}")))?;
+        Ok(Secret(bytes.to_vec()))
+    }
+
     fn mac(&self) -> Hmac<Sha256> {
         // HMAC takes a key of any length.
         Hmac::<Sha256>::new_from_slice(&self.0).unwrap_or_else(|_| unreachable!("HMAC accepts any key length"))

@@ -8,7 +8,7 @@
 
 mod common;
 
-use common::browser::{http_get, Browser};
+use common::browser::{http_get, keep_screenshot, Browser};
 use common::free_port;
 use common::process::{binary, server_binary, Proc};
 use impact_client::netsim::Link;
@@ -100,14 +100,7 @@ fn the_viewer_draws_the_arena_in_chromium() {
     assert!(draw_ms < 16.0, "a frame takes {draw_ms} ms to draw");
     // Let a few frames run for the screenshot, then keep it.
     std::thread::sleep(Duration::from_millis(1500));
-    let png = b.screenshot();
-    assert!(png.starts_with(b"\x89PNG") && png.len() > 20_000, "a real picture ({} bytes)", png.len());
-    let target = binary("impact-inspect").parent().and_then(|p| p.parent()).expect("target dir").join("viewer.png");
-    std::fs::write(&target, &png).expect("writing the screenshot");
-    if std::env::var_os("IMPACT_UPDATE_SCREENSHOT").is_some() {
-        let docs = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/viewer.png");
-        std::fs::write(&docs, &png).expect("writing docs/viewer.png");
-    }
+    let target = keep_screenshot(&b.screenshot(), "viewer.png");
     eprintln!("screenshot: {}", target.display());
 
     // The server's plots filled from its stats.

@@ -116,6 +116,10 @@ struct Args {
     /// With --demo: serve the live viewer here (`host:port`; a free port if this one is taken).
     #[arg(long, default_value = "127.0.0.1:8080")]
     viewer: String,
+    /// With --demo: serve the play page here (an impact-gateway in this process, guests in the
+    /// arena; a free port if this one is taken).
+    #[arg(long, default_value = "127.0.0.1:8088")]
+    play: String,
 }
 
 fn parse_duration(s: &str) -> Result<Duration, String> {
@@ -140,11 +144,17 @@ fn prediction(a: &Args) -> Result<(u32, Option<impact_core::scene::SceneRules>)>
     Ok((predict, Some(scene.rules())))
 }
 
-/// The demo's server (the arena, in this process) and live viewer; sets the demo's defaults on
-/// `a` where the flags were not given.
-fn start_demo(
-    a: &mut Args,
-) -> Result<(impact_server::runtime::ServerHandle, (impact_client_sim::web::Viewer, zenoh::Session))> {
+/// What the demo runs beside the load: the server, the live viewer and the play page's gateway.
+struct Demo {
+    server: impact_server::runtime::ServerHandle,
+    viewer: impact_client_sim::web::Viewer,
+    play: impact_gateway::gateway::Running,
+    _session: zenoh::Session,
+}
+
+/// The demo's server (the arena, in this process), live viewer and play page; sets the demo's
+/// defaults on `a` where the flags were not given.
+fn start_demo(a: &mut Args) -> Result<Demo> {
     let given = |name: &str| std::env::args().any(|x| x == name || x.starts_with(&format!("{name}=")));
     if !given("--clients") {
         a.clients = 300;
@@ -180,20 +190,36 @@ fn start_demo(
     let viewer = impact_client_sim::web::Viewer::start(&session, &world, &a.viewer)
         .or_else(|_| impact_client_sim::web::Viewer::start(&session, &world, "127.0.0.1:0"))?;
     eprintln!("demo: watch it live at {}", viewer.url());
+    let play = start_play(&session, world, &a.play)?;
+    eprintln!(
+        "demo: play in the browser at http://{}/ (WASD moves, Q/E down and up, a click on a body fires at it; \
+         the demo runs {} s: --duration 10m for longer)",
+        play.addr,
+        a.duration.as_secs()
+    );
     eprintln!(
         "demo: play in it (another terminal): cargo run --release -p impact-bevy --example arena -- --connect {endpoint}"
     );
-    Ok((server, (viewer, session)))
+    Ok(Demo { server, viewer, play, _session: session })
+}
+
+/// The play page: a gateway in this process whose guests play in `world`.
+fn start_play(session: &zenoh::Session, world: WorldId, listen: &str) -> Result<impact_gateway::gateway::Running> {
+    use impact_gateway::{auth::Authenticator, page::GuestPolicy, token::Secret, Config, Gateway};
+    let config = Config {
+        auth: Authenticator { users: None, secret: Some(Secret::random()?) },
+        guests: Some(GuestPolicy::new(world)),
+        ..Config::default()
+    };
+    let gw = Gateway::new(config, session.clone());
+    let play = impact_gateway::gateway::start(gw.clone(), listen, 1)
+        .or_else(|_| impact_gateway::gateway::start(gw, "127.0.0.1:0", 1))?;
+    Ok(play)
 }
 
 fn main() -> Result<()> {
     let mut a = Args::parse();
-    let (mut demo_server, mut demo_viewer) = if a.demo {
-        let (server, viewer) = start_demo(&mut a)?;
-        (Some(server), Some(viewer))
-    } else {
-        (None, None)
-    };
+    let mut demo = if a.demo { Some(start_demo(&mut a)?) } else { None };
     if !(0.0..=1.0).contains(&a.loss) {
         bail!("--loss {} must be in [0, 1]", a.loss);
     }
@@ -248,8 +274,9 @@ fn main() -> Result<()> {
     );
     let report = load::run(&cfg)?;
     println!("{report}");
-    drop(demo_viewer.take());
-    if let Some(server) = demo_server.take() {
+    if let Some(Demo { server, viewer, play, _session }) = demo.take() {
+        drop(play);
+        drop(viewer);
         println!("server:\n{}", server.stop());
     }
     if let Some(path) = &a.report {

@@ -3,12 +3,14 @@
 //! ```text
 //! impact-gateway --connect tcp/127.0.0.1:7447 --users users.toml --listen 127.0.0.1:8088
 //! impact-gateway token --secret-file secret --client 7 --world arena --ttl-s 3600
+//! impact-gateway --connect tcp/127.0.0.1:7447 --guests arena   # the play page, no logins
 //! ```
 
 use anyhow::{bail, Context, Result};
 use clap::{Args as ClapArgs, Parser, Subcommand};
 use impact_client::transport::{open_session, Credentials, Mode};
 use impact_gateway::auth::Authenticator;
+use impact_gateway::page::GuestPolicy;
 use impact_gateway::token::{unix_now, Grant, Secret};
 use impact_gateway::{Config, Gateway};
 use impact_protocol::users::Users;
@@ -69,6 +71,16 @@ struct Serve {
     /// The secret of signed player tokens (at least 32 bytes), shared with the game's backend.
     #[arg(long)]
     token_secret: Option<PathBuf>,
+    /// Let pages without credentials play as guests in this world: `POST /guest` gives each a
+    /// token for a fresh client id (signed with --token-secret, or a secret made at start).
+    #[arg(long)]
+    guests: Option<String>,
+    /// The first guest's client id (guests count up from it).
+    #[arg(long, default_value_t = GuestPolicy::FIRST)]
+    guest_ids: u32,
+    /// Seconds a guest token is valid for.
+    #[arg(long, default_value_t = 3600)]
+    guest_ttl_s: u64,
     /// An origin whose pages may connect besides the gateway's own (repeat; `*` for any).
     #[arg(long = "allow-origin")]
     allow_origins: Vec<String>,
@@ -113,9 +125,19 @@ fn read_secret(path: &Path) -> Result<Secret> {
 
 fn serve(a: &Serve) -> Result<()> {
     let users = a.users.as_deref().map(load_users).transpose()?;
-    let secret = a.token_secret.as_deref().map(read_secret).transpose()?;
+    let mut secret = a.token_secret.as_deref().map(read_secret).transpose()?;
+    let guests = match &a.guests {
+        Some(world) => {
+            let world = WorldId::new(world.as_str()).map_err(|e| anyhow::anyhow!("--guests: {e}"))?;
+            if secret.is_none() {
+                secret = Some(Secret::random()?);
+            }
+            Some(GuestPolicy { world, first: a.guest_ids, ttl_s: a.guest_ttl_s })
+        }
+        None => None,
+    };
     if users.as_ref().is_none_or(|u| u.users.is_empty()) && secret.is_none() {
-        bail!("nobody could play: give --users (with [[user]] entries) or --token-secret, or both");
+        bail!("nobody could play: give --users (with [[user]] entries), --token-secret or --guests WORLD");
     }
     let creds = match (&a.as_gateway, &users) {
         (Some(name), Some(u)) => {
@@ -142,6 +164,7 @@ fn serve(a: &Serve) -> Result<()> {
         allow_origins: a.allow_origins.clone(),
         max_connections: a.max_connections,
         max_messages_per_s: a.max_messages_per_s,
+        guests,
         ..Config::default()
     };
     let gw = Gateway::new(config, session);
@@ -149,6 +172,10 @@ fn serve(a: &Serve) -> Result<()> {
         .with_context(|| format!("listening on {}", a.listen))?;
     let addr = running.addr;
     println!("impact-gateway listening on http://{addr} (WebSocket ws://{addr}/ws, counters /stats)");
+    match &gw.config.guests {
+        Some(g) => println!("play: http://{addr}/ (guests in {}, from client {})", g.world, g.first),
+        None => println!("play: http://{addr}/?token=TOKEN (or ?world=W&client=C&user=U&password=P)"),
+    }
     report(gw.clone(), a.report_s);
     let (stop_tx, stop_rx) = std::sync::mpsc::sync_channel::<()>(1);
     ctrlc::set_handler(move || {

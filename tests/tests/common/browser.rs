@@ -39,7 +39,10 @@ impl Browser {
         let bin = chromium().expect(
             "the viewer tests need Chromium: `apt-get install chromium` (.ci/run installs it), or set IMPACT_CHROMIUM",
         );
-        let profile = std::env::temp_dir().join(format!("impact-chromium-{}", std::process::id()));
+        // A profile of its own: a test may run two browsers (two players) at once.
+        static LAUNCHED: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+        let n = LAUNCHED.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let profile = std::env::temp_dir().join(format!("impact-chromium-{}-{n}", std::process::id()));
         let _ = std::fs::remove_dir_all(&profile);
         let mut cmd = Command::new(bin);
         cmd.args(["--headless=new", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-extensions"])
@@ -130,11 +133,44 @@ impl Browser {
         }
     }
 
+    /// Presses (`down`) or releases a key, as a keyboard does (`key` as `KeyboardEvent.key`: a
+    /// letter).
+    pub fn key(&mut self, key: &str, down: bool) {
+        let code = format!("Key{}", key.to_ascii_uppercase());
+        let kind = if down { "keyDown" } else { "keyUp" };
+        self.call("Input.dispatchKeyEvent", json!({"type": kind, "key": key, "code": code}));
+    }
+
+    /// Clicks the left button at (`x`, `y`), CSS pixels from the page's top left.
+    pub fn click(&mut self, x: f64, y: f64) {
+        self.call("Input.dispatchMouseEvent", json!({"type": "mouseMoved", "x": x, "y": y}));
+        for kind in ["mousePressed", "mouseReleased"] {
+            self.call(
+                "Input.dispatchMouseEvent",
+                json!({"type": kind, "x": x, "y": y, "button": "left", "clickCount": 1}),
+            );
+        }
+    }
+
     /// A PNG of the page.
     pub fn screenshot(&mut self) -> Vec<u8> {
         let r = self.call("Page.captureScreenshot", json!({"format": "png"}));
         base64::engine::general_purpose::STANDARD.decode(r["data"].as_str().expect("png data")).expect("base64")
     }
+}
+
+/// Keeps a picture a browser test took: `<target dir>/<name>`, and `docs/<name>` (the one the
+/// README shows) when `IMPACT_UPDATE_SCREENSHOT` is set. Returns the first path.
+pub fn keep_screenshot(png: &[u8], name: &str) -> PathBuf {
+    assert!(png.starts_with(b"\x89PNG") && png.len() > 20_000, "a real picture ({} bytes)", png.len());
+    let target =
+        super::process::binary("impact-server").parent().and_then(|p| p.parent()).expect("target dir").join(name);
+    std::fs::write(&target, png).expect("writing the screenshot");
+    if std::env::var_os("IMPACT_UPDATE_SCREENSHOT").is_some() {
+        let docs = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs").join(name);
+        std::fs::write(&docs, png).expect("writing the screenshot into docs/");
+    }
+    target
 }
 
 /// A plain HTTP GET on loopback; the body (read to its `Content-Length`, or to the close).
