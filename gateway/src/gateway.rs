@@ -269,15 +269,58 @@ pub fn start(gw: Arc<Gateway>, listen: &str, threads: usize) -> std::io::Result<
     let gw2 = gw.clone();
     let thread = std::thread::Builder::new().name("impact-gateway-serve".into()).spawn(move || {
         rt.block_on(async move {
-            axum::serve(listener, app)
-                .with_graceful_shutdown(async move {
-                    let _ = stop_rx.await;
-                    gw2.shut_down();
-                })
-                .await
+            serve(listener, app, &gw2, stop_rx).await;
+            gw2.shut_down();
+            Ok(())
         })
     })?;
     Ok(Running { addr, gateway: gw, stop: Some(stop_tx), thread: Some(thread) })
+}
+
+/// A request's head must arrive within this, or the connection is closed: a half-open
+/// connection (a slowloris) costs a task and a socket for this long, not forever.
+pub const HEADER_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// Accepts connections until `stop`: each is served HTTP/1.1 (with upgrades, for `/ws`) with
+/// [`HEADER_TIMEOUT`] on every request head, and at most `max_connections` of them are in their
+/// HTTP stage at once (beyond, closed at once, counted as refused; an upgraded connection
+/// leaves that count for the gateway's own, `Counters::open`).
+async fn serve(
+    listener: tokio::net::TcpListener,
+    app: axum::Router,
+    gw: &Arc<Gateway>,
+    mut stop: tokio::sync::oneshot::Receiver<()>,
+) {
+    use hyper_util::rt::{TokioIo, TokioTimer};
+    let http = Arc::new(tokio::sync::Semaphore::new(gw.config.max_connections));
+    loop {
+        let (tcp, _) = tokio::select! {
+            accepted = listener.accept() => match accepted {
+                Ok(a) => a,
+                Err(_) => {
+                    // Out of file descriptors, say: wait for some to close.
+                    tokio::time::sleep(Duration::from_millis(50)).await;
+                    continue;
+                }
+            },
+            _ = &mut stop => return,
+        };
+        let Ok(permit) = http.clone().try_acquire_owned() else {
+            gw.counters.refused.fetch_add(1, Relaxed);
+            continue;
+        };
+        let _ = tcp.set_nodelay(true);
+        let service = hyper_util::service::TowerToHyperService::new(app.clone());
+        tokio::spawn(async move {
+            let conn = hyper::server::conn::http1::Builder::new()
+                .timer(TokioTimer::new())
+                .header_read_timeout(HEADER_TIMEOUT)
+                .serve_connection(TokioIo::new(tcp), service)
+                .with_upgrades();
+            let _ = conn.await;
+            drop(permit);
+        });
+    }
 }
 
 /// Tells every player when the link to the servers comes back (checked four times a second,
