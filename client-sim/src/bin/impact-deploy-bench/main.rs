@@ -8,7 +8,10 @@
 //! - `replay`: a load test recorded with `--record`, replayed offline, every hash checked.
 //! - `players`: what a watching player costs the server, the server on one CPU and the load on
 //!   another (`players.rs`).
+//! - `gateway`: what a browser player costs impact-gateway (on a CPU of its own) and what it adds
+//!   to an input's round trip over Zenoh's path, measured side by side (`gateway.rs`).
 
+mod gateway;
 mod players;
 
 use anyhow::{bail, Context, Result};
@@ -90,6 +93,9 @@ enum Suite {
     /// What a watching player costs: the server on one CPU, the load on another, by player count
     /// with and without state streams.
     Players(players::Players),
+    /// What a browser player costs impact-gateway, on a CPU of its own, and what it adds to the
+    /// input-to-ack round trip beside players on Zenoh directly.
+    Gateway(gateway::GatewayBench),
 }
 
 fn main() -> Result<()> {
@@ -99,6 +105,7 @@ fn main() -> Result<()> {
         Suite::Failover { clients, kills, hang } => failover(clients, kills, hang),
         Suite::Replay { clients, seconds } => replay(clients, seconds),
         Suite::Players(p) => players::players(&p),
+        Suite::Gateway(g) => gateway::gateway(&g),
     }
 }
 
