@@ -204,7 +204,10 @@ async fn upgrade(State(gw): State<Arc<Gateway>>, headers: HeaderMap, ws: WebSock
     let gw2 = gw.clone();
     ws.max_message_size(limit)
         .max_frame_size(limit)
-        // Backpressure is the outbox's: the socket's own buffer stays small.
+        // A browser's messages are small (at most `limit`): tungstenite zero-fills its whole read
+        // buffer on every read it tries, 128 KiB by default, which was a third of the gateway's
+        // CPU at 500 players. Backpressure is the outbox's: the socket's own buffer stays small.
+        .read_buffer_size(READ_BUFFER_BYTES)
         .write_buffer_size(0)
         .max_write_buffer_size(4 * 1024 * 1024)
         .on_failed_upgrade(move |_| {
@@ -276,6 +279,9 @@ pub fn start(gw: Arc<Gateway>, listen: &str, threads: usize) -> std::io::Result<
     })?;
     Ok(Running { addr, gateway: gw, stop: Some(stop_tx), thread: Some(thread) })
 }
+
+/// The WebSocket read buffer: two of the largest messages a browser may send.
+const READ_BUFFER_BYTES: usize = 2 * impact_protocol::limits::MAX_CLIENT_MESSAGE_BYTES;
 
 /// A request's head must arrive within this, or the connection is closed: a half-open
 /// connection (a slowloris) costs a task and a socket for this long, not forever.
