@@ -8,7 +8,7 @@
 
 use crate::auth::Player;
 use crate::gateway::Gateway;
-use crate::outbox::{Kind, Mailbox};
+use crate::outbox::{Kind, Mailbox, Queued};
 use crate::relay::{Link, RelayError};
 use crate::token::unix_now;
 use crate::wire::{close_reason, encode_notice, Close, Hello, Notice, Request};
@@ -133,12 +133,14 @@ async fn relay(
     }
 }
 
-/// Sends `batch` to the browser within the write timeout.
-async fn write(tx: &mut Tx, gw: &Gateway, batch: &mut Vec<Vec<u8>>) -> Result<(), (Close, String)> {
-    let (n, bytes) = (batch.len() as u64, batch.iter().map(|b| b.len() as u64).sum::<u64>());
+/// Sends `batch` to the browser within the write timeout, and times the kept messages' stay in
+/// the gateway (queued to written).
+async fn write(tx: &mut Tx, gw: &Gateway, batch: &mut Vec<Queued>) -> Result<(), (Close, String)> {
+    let (n, bytes) = (batch.len() as u64, batch.iter().map(|q| q.bytes.len() as u64).sum::<u64>());
+    let kept: Vec<Instant> = batch.iter().filter(|q| q.kind == Kind::Kept).map(|q| q.at).collect();
     let sending = async {
-        for b in batch.drain(..) {
-            tx.feed(Message::Binary(b.into())).await?;
+        for q in batch.drain(..) {
+            tx.feed(Message::Binary(q.bytes.into())).await?;
         }
         tx.flush().await
     };
@@ -148,6 +150,7 @@ async fn write(tx: &mut Tx, gw: &Gateway, batch: &mut Vec<Vec<u8>>) -> Result<()
         Ok(Ok(())) => {
             gw.counters.messages_out.fetch_add(n, Relaxed);
             gw.counters.bytes_out.fetch_add(bytes, Relaxed);
+            gw.counters.relayed(&kept);
             Ok(())
         }
     }

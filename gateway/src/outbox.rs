@@ -14,6 +14,7 @@ use crate::wire::Close;
 use std::collections::VecDeque;
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::{Arc, Mutex};
+use std::time::Instant;
 
 /// What a queued message is, for the drop policy.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -22,6 +23,18 @@ pub enum Kind {
     State,
     /// Anything else (acks, rejects, events, pongs, the welcome, notices): never dropped.
     Kept,
+}
+
+/// A queued message, and when it was queued (the gateway's own share of its latency is from
+/// then to its write).
+#[derive(Debug)]
+pub struct Queued {
+    /// What it is.
+    pub kind: Kind,
+    /// The MessagePack message.
+    pub bytes: Vec<u8>,
+    /// When the gateway had it.
+    pub at: Instant,
 }
 
 /// What became of a pushed message.
@@ -38,7 +51,7 @@ pub enum Pushed {
 /// The bounded queue.
 #[derive(Debug)]
 pub struct Outbox {
-    queue: VecDeque<(Kind, Vec<u8>)>,
+    queue: VecDeque<Queued>,
     bytes: usize,
     max_messages: usize,
     max_bytes: usize,
@@ -71,15 +84,15 @@ impl Outbox {
             return Pushed::Overflow;
         }
         while !self.fits(bytes.len()) {
-            let Some(i) = self.queue.iter().position(|(k, _)| *k == Kind::State) else { break };
-            if let Some((_, old)) = self.queue.remove(i) {
-                self.bytes -= old.len();
+            let Some(i) = self.queue.iter().position(|q| q.kind == Kind::State) else { break };
+            if let Some(old) = self.queue.remove(i) {
+                self.bytes -= old.bytes.len();
                 self.dropped_state += 1;
             }
         }
         if self.fits(bytes.len()) {
             self.bytes += bytes.len();
-            self.queue.push_back((kind, bytes));
+            self.queue.push_back(Queued { kind, bytes, at: Instant::now() });
             return Pushed::Queued;
         }
         match kind {
@@ -100,8 +113,8 @@ impl Outbox {
     }
 
     /// Takes every queued message, oldest first, into `out`.
-    pub fn drain_into(&mut self, out: &mut Vec<Vec<u8>>) {
-        out.extend(self.queue.drain(..).map(|(_, b)| b));
+    pub fn drain_into(&mut self, out: &mut Vec<Queued>) {
+        out.extend(self.queue.drain(..));
         self.bytes = 0;
     }
 
@@ -180,7 +193,7 @@ impl Mailbox {
     }
 
     /// Takes what is queued into `out`, oldest first.
-    pub fn drain_into(&self, out: &mut Vec<Vec<u8>>) {
+    pub fn drain_into(&self, out: &mut Vec<Queued>) {
         self.lock().drain_into(out);
     }
 
@@ -221,7 +234,7 @@ mod tests {
         assert_eq!(o.push(Kind::State, vec![10; 1]), Pushed::Overflow, "nothing after an overflow");
         let mut out = Vec::new();
         o.drain_into(&mut out);
-        let firsts: Vec<u8> = out.iter().map(|b| b[0]).collect();
+        let firsts: Vec<u8> = out.iter().map(|q| q.bytes[0]).collect();
         assert_eq!(firsts, vec![2, 4, 5, 7], "kept messages in order");
         assert_eq!((o.len(), o.bytes()), (0, 0));
     }

@@ -1,11 +1,13 @@
 //! What the gateway counts: connections by how they ended, messages and bytes each way, what
-//! its bounds dropped. Served as JSON on `GET /stats` and printed by `impact-gateway` every
+//! its bounds dropped, and how long what it relays stays in it. Served as JSON on `GET /stats` and printed by `impact-gateway` every
 //! few seconds.
 
 use crate::wire::Close;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::sync::Mutex;
+use std::time::Instant;
 
 /// The counters, shared by every connection.
 #[derive(Debug, Default)]
@@ -34,6 +36,9 @@ pub struct Counters {
     pub stale_owner: AtomicU64,
     /// Samples from the servers that did not decode, dropped.
     pub malformed_from_server: AtomicU64,
+    /// How long answers, events and the rest of what is never dropped stayed in the gateway:
+    /// from their sample's arrival to their write to the browser, microseconds, since start.
+    relay_us: Mutex<Option<hdrhistogram::Histogram<u64>>>,
 }
 
 /// The counters at one moment.
@@ -63,9 +68,32 @@ pub struct Snapshot {
     pub stale_owner: u64,
     /// See [`Counters`].
     pub malformed_from_server: u64,
+    /// Messages never dropped (answers, events, ...) relayed to browsers, and their time in the
+    /// gateway from arrival to write, microseconds: median, 99th percentile, most.
+    pub relayed_kept: u64,
+    /// See `relayed_kept`.
+    pub relay_us_p50: u64,
+    /// See `relayed_kept`.
+    pub relay_us_p99: u64,
+    /// See `relayed_kept`.
+    pub relay_us_max: u64,
 }
 
 impl Counters {
+    /// Kept messages written, each queued at one of `at`.
+    pub fn relayed(&self, at: &[Instant]) {
+        if at.is_empty() {
+            return;
+        }
+        let mut h = self.relay_us.lock().unwrap_or_else(|e| e.into_inner());
+        let h = h.get_or_insert_with(|| {
+            hdrhistogram::Histogram::new_with_bounds(1, 60_000_000, 2).expect("the bounds are valid")
+        });
+        for t in at {
+            h.saturating_record(t.elapsed().as_micros().max(1) as u64);
+        }
+    }
+
     /// Counts a connection ended for `why`.
     pub fn closed(&self, why: Close) {
         if let Some(i) = Close::ALL.iter().position(|c| *c == why) {
@@ -75,6 +103,7 @@ impl Counters {
 
     /// The counters now.
     pub fn snapshot(&self) -> Snapshot {
+        let relay = self.relay_us.lock().unwrap_or_else(|e| e.into_inner()).clone();
         let closed = Close::ALL
             .iter()
             .zip(&self.closed)
@@ -94,6 +123,10 @@ impl Counters {
             state_dropped: self.state_dropped.load(Relaxed),
             stale_owner: self.stale_owner.load(Relaxed),
             malformed_from_server: self.malformed_from_server.load(Relaxed),
+            relayed_kept: relay.as_ref().map_or(0, |h| h.len()),
+            relay_us_p50: relay.as_ref().map_or(0, |h| h.value_at_quantile(0.5)),
+            relay_us_p99: relay.as_ref().map_or(0, |h| h.value_at_quantile(0.99)),
+            relay_us_max: relay.as_ref().map_or(0, |h| h.max()),
         }
     }
 }

@@ -198,6 +198,9 @@ fn a_browser_player_plays_through_the_gateway() {
     assert!(bob.until(WAIT, |m| matches!(m, ServerMessage::Welcome(_)).then_some(())).is_some());
     let stats = gw.gateway.counters.snapshot();
     assert!(stats.joined >= 2 && stats.messages_in >= 2 && stats.messages_out > 0, "{stats:?}");
+    // The welcomes, the ack and the scene went through the gateway's timing of what it never drops.
+    assert!(stats.relayed_kept >= 4 && stats.relay_us_p99 >= stats.relay_us_p50, "{stats:?}");
+    assert!(stats.relay_us_max < 10_000_000, "a message stayed {} us in the gateway", stats.relay_us_max);
 }
 
 /// Every refusal is a close with its code and reason.

@@ -11,7 +11,8 @@
 //! instant the answer arrived (the `Session`'s `Answer::round_trip`, stamped on arrival). The
 //! gateway's CPU is read from the OS over the steady window, its memory per connection is its
 //! resident memory under load less the same before anyone connected, and its drops come from its
-//! `/stats`. Each round starts a fresh server and gateway.
+//! `/stats`, as does its own share of the latency: how long answers and events stayed in it, from
+//! their sample's arrival to their write to the socket ("in-gw", since it started). Each round starts a fresh server and gateway.
 
 use super::{cpu_s, endpoint, median, progress, server_on};
 use anyhow::{bail, Context, Result};
@@ -78,6 +79,11 @@ struct Round {
     load_lag_ms_p50: f64,
 }
 
+/// A microsecond count from the gateway's `/stats`.
+fn us(v: &serde_json::Value) -> f64 {
+    v.as_u64().map_or(f64::NAN, |x| x as f64)
+}
+
 /// Percentile `q` of `v` (sorted here), NaN when empty.
 fn pct(v: &mut [f64], q: f64) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -100,7 +106,7 @@ pub fn gateway(a: &GatewayBench) -> Result<()> {
         a.connections, a.zenoh, a.input_hz, a.gateway_cpu, a.load_cpu, a.seconds, a.warmup
     );
     println!(
-        "{:>5} {:>9} {:>9} {:>10} {:>10} {:>10} {:>10} {:>9} {:>7} {:>9} {:>10} {:>9} {:>8}",
+        "{:>5} {:>9} {:>9} {:>10} {:>10} {:>10} {:>10} {:>9} {:>7} {:>9} {:>10} {:>9} {:>8} {:>13}",
         "round",
         "ws play",
         "zen play",
@@ -113,7 +119,8 @@ pub fn gateway(a: &GatewayBench) -> Result<()> {
         "us/s/conn",
         "KiB/conn",
         "st drops",
-        "lag p99"
+        "lag p99",
+        "in-gw p50/99"
     );
     let mut rounds = Vec::new();
     for round in 1..=a.rounds {
@@ -127,12 +134,13 @@ pub fn gateway(a: &GatewayBench) -> Result<()> {
         let drops = r.stats["state_dropped"].as_u64().unwrap_or(0);
         println!(
             "{round:>5} {:>9} {:>9} {ws50:>10.2} {ws99:>10.2} {zn50:>10.2} {zn99:>10.2} {:>9.2} {:>7.3} {us_per_conn:>9.1} \
-             {kib_per_conn:>10.1} {drops:>9} {:>8.1}",
+             {kib_per_conn:>10.1} {drops:>9} {:>8.1} {:>13}",
             r.ws_playing,
             r.zenoh_playing,
             ws99 - zn99,
             r.cores,
-            r.load_lag_ms_p99
+            r.load_lag_ms_p99,
+            format!("{:.2}/{:.2}", us(&r.stats["relay_us_p50"]) / 1e3, us(&r.stats["relay_us_p99"]) / 1e3)
         );
         println!(
             "{}",
