@@ -274,11 +274,20 @@ pub fn start(gw: Arc<Gateway>, listen: &str, threads: usize) -> std::io::Result<
         rt.block_on(async move {
             serve(listener, app, &gw2, stop_rx).await;
             gw2.shut_down();
+            // Each connection sends its `going_away` close before the runtime (and with it every
+            // connection's task) is dropped: a short wait, bounded.
+            let until = std::time::Instant::now() + SHUTDOWN_WAIT;
+            while gw2.counters.open.load(Relaxed) > 0 && std::time::Instant::now() < until {
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
             Ok(())
         })
     })?;
     Ok(Running { addr, gateway: gw, stop: Some(stop_tx), thread: Some(thread) })
 }
+
+/// The longest a stopping gateway waits for its connections to send their `going_away` closes.
+const SHUTDOWN_WAIT: Duration = Duration::from_secs(2);
 
 /// The WebSocket read buffer: two of the largest messages a browser may send.
 const READ_BUFFER_BYTES: usize = 2 * impact_protocol::limits::MAX_CLIENT_MESSAGE_BYTES;

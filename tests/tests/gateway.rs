@@ -201,6 +201,9 @@ fn a_browser_player_plays_through_the_gateway() {
     // The welcomes, the ack and the scene went through the gateway's timing of what it never drops.
     assert!(stats.relayed_kept >= 4 && stats.relay_us_p99 >= stats.relay_us_p50, "{stats:?}");
     assert!(stats.relay_us_max < 10_000_000, "a message stayed {} us in the gateway", stats.relay_us_max);
+    // A gateway that stops tells its players so (and they come back to another, or to it).
+    gw.stop().expect("the gateway stops");
+    assert_eq!(alice.closed(WAIT).map(|c| c.0), Some(1001), "going_away");
 }
 
 /// Every refusal is a close with its code and reason.
