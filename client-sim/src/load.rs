@@ -487,7 +487,10 @@ struct Wiring {
     /// Each client's input publisher. Declared, as a game's transport declares it: the key is
     /// then resolved once, not on every message at the server.
     inputs: Vec<zenoh::pubsub::Publisher<'static>>,
-    tokens: Vec<zenoh::liveliness::LivelinessToken>,
+    tokens: Vec<Option<zenoh::liveliness::LivelinessToken>>,
+    /// When each client's presence was last declared, and how long it waits for its welcome
+    /// before declaring it again.
+    announced: Vec<(Instant, Duration)>,
     /// One more for each world the clients moved to.
     generation: u32,
     /// Sessions closed by the fault `drops`.
@@ -512,6 +515,7 @@ impl Wiring {
             stats: None,
             inputs: Vec::new(),
             tokens: Vec::new(),
+            announced: Vec::new(),
             generation: 0,
             closed: Vec::new(),
             opening: Vec::new(),
@@ -631,12 +635,7 @@ impl Wiring {
         for (k, c) in clients.iter().enumerate().filter(|(k, _)| k % n == s) {
             self.subscribers[k] = self.subscribe_client(cfg, world, k, c)?;
             self.inputs[k] = self.input_publisher(cfg, world, k, c)?;
-            self.tokens[k] = self
-                .session(k)
-                .liveliness()
-                .declare_token(keys::PRESENCE.key(world, Some(c.id)))
-                .wait()
-                .map_err(|e| anyhow::anyhow!("presence token: {e}"))?;
+            self.tokens[k] = Some(self.presence(world, k, c.id)?);
         }
         if s == 0 {
             self.subscribe_stats(world)?;
@@ -709,16 +708,52 @@ impl Wiring {
     /// Declares every client's presence: last, so every subscription is in place when the
     /// welcome comes.
     fn declare_presence(&mut self, world: &WorldId, clients: &[Client]) -> anyhow::Result<()> {
+        self.tokens.clear();
+        self.announced.clear();
         for (k, c) in clients.iter().enumerate() {
-            let t = self
-                .session(k)
-                .liveliness()
-                .declare_token(keys::PRESENCE.key(world, Some(c.id)))
-                .wait()
-                .map_err(|e| anyhow::anyhow!("presence token: {e}"))?;
-            self.tokens.push(t);
+            let t = self.presence(world, k, c.id)?;
+            self.tokens.push(Some(t));
         }
         Ok(())
+    }
+
+    /// Client `k`'s presence token in `world`, declared now.
+    fn presence(
+        &mut self,
+        world: &WorldId,
+        k: usize,
+        id: ClientId,
+    ) -> anyhow::Result<zenoh::liveliness::LivelinessToken> {
+        let now = (Instant::now(), impact_client::transport::WELCOME_WAIT);
+        match self.announced.get_mut(k) {
+            Some(a) => *a = now,
+            None => self.announced.push(now),
+        }
+        self.session(k)
+            .liveliness()
+            .declare_token(keys::PRESENCE.key(world, Some(id)))
+            .wait()
+            .map_err(|e| anyhow::anyhow!("presence token: {e}"))
+    }
+
+    /// As a game's transport does: each client still joining whose welcome has not come within
+    /// its wait withdraws its presence and declares it again (the wait doubles, up to
+    /// `WELCOME_WAIT_MAX`). How many did.
+    fn repeat_presence(&mut self, world: &WorldId, clients: &[Client], now: Instant) -> u64 {
+        let mut repeated = 0;
+        for (k, c) in clients.iter().enumerate() {
+            let open = !self.closed[self.session_of(k)];
+            let Some(&(at, wait)) = self.announced.get(k) else { continue };
+            if !open || c.session.status() != Status::Joining || now.saturating_duration_since(at) < wait {
+                continue;
+            }
+            // The old token goes first: a second one on the same key would be no news.
+            drop(self.tokens[k].take());
+            self.tokens[k] = self.presence(world, k, c.id).ok();
+            self.announced[k].1 = (wait * 2).min(impact_client::transport::WELCOME_WAIT_MAX);
+            repeated += 1;
+        }
+        repeated
     }
 
     /// What the clients received so far: state stream bytes and frames, and bytes in all.
@@ -937,6 +972,7 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
         if let Some(next) = run.closed_to() {
             run.follow(&mut wiring, next, now)?;
         }
+        run.r.presence_repeats += wiring.repeat_presence(&run.world, &run.clients, now);
         run.play(now);
         run.check(&wiring, now);
         run.uplink(&wiring, now);

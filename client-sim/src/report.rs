@@ -14,6 +14,9 @@ pub struct Report {
     pub duration_s: f64,
     /// Clients that were welcomed with an avatar.
     pub clients_welcomed: u32,
+    /// Presence declarations repeated because a client's welcome had not come within
+    /// `impact_client::transport::WELCOME_WAIT` (doubling).
+    pub presence_repeats: u64,
     /// Inputs the clients produced.
     pub inputs_sent: u64,
     /// Inputs none of whose copies reached the server (the simulated uplink loss took every
@@ -352,8 +355,15 @@ impl std::fmt::Display for Report {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
             f,
-            "impact-sim: {} clients over {} sessions for {:.1} s ({} welcomed)",
-            self.clients, self.sessions, self.duration_s, self.clients_welcomed
+            "impact-sim: {} clients over {} sessions for {:.1} s ({} welcomed{})",
+            self.clients,
+            self.sessions,
+            self.duration_s,
+            self.clients_welcomed,
+            match self.presence_repeats {
+                0 => String::new(),
+                n => format!(", presence declared again {n} times for a late welcome"),
+            }
         )?;
         writeln!(
             f,

@@ -16,8 +16,12 @@
 //! A dropped link is Zenoh's to restore: the session retries its endpoints with back-off (100 ms
 //! doubling to 500 ms) and re-declares the presence and subscriptions; the server welcomes the
 //! client again within its grace period and the session resumes its seqs.
+//!
+//! A welcome that does not come (lost on its way, or a presence the server never heard) is asked
+//! for again: while the session is joining, the presence is withdrawn and declared again after
+//! [`WELCOME_WAIT`], doubling up to [`WELCOME_WAIT_MAX`] ([`Connection::presence_repeats`]).
 
-use crate::session::Session;
+use crate::session::{Session, Status};
 use ::zenoh::Wait;
 use impact_protocol::limits::MAX_SERVER_MESSAGE_BYTES;
 use impact_protocol::{
@@ -33,6 +37,12 @@ use std::time::{Duration, Instant};
 /// Messages queued between Zenoh's callbacks and the next [`Connection::pump`], at most: a
 /// second of a busy client's messages at a 60 Hz frame rate many times over.
 pub const INBOX_CAPACITY: usize = 16_384;
+
+/// How long a joining client waits for its welcome before it declares its presence again.
+pub const WELCOME_WAIT: Duration = Duration::from_secs(1);
+
+/// The longest wait between two declarations of a joining client's presence.
+pub const WELCOME_WAIT_MAX: Duration = Duration::from_secs(8);
 
 /// A Zenoh user name and password (for a server started with `--users`).
 #[derive(Clone, Debug)]
@@ -340,7 +350,48 @@ pub struct Connection {
     /// Whether the session had a link to a router or peer at the last pump.
     linked: AtomicBool,
     _subscribers: Vec<::zenoh::pubsub::Subscriber<()>>,
-    _token: ::zenoh::liveliness::LivelinessToken,
+    presence: std::sync::Mutex<Presence>,
+}
+
+/// The client's presence token, and when to declare it again while no welcome comes.
+#[derive(Debug)]
+struct Presence {
+    token: Option<::zenoh::liveliness::LivelinessToken>,
+    declared: Instant,
+    wait: Duration,
+    repeats: u64,
+}
+
+impl Presence {
+    fn declare(session: &::zenoh::Session, world: &WorldId, client: ClientId) -> Result<Presence, TransportError> {
+        let token = Presence::token(session, world, client)?;
+        Ok(Presence { token: Some(token), declared: Instant::now(), wait: WELCOME_WAIT, repeats: 0 })
+    }
+
+    fn token(
+        session: &::zenoh::Session,
+        world: &WorldId,
+        client: ClientId,
+    ) -> Result<::zenoh::liveliness::LivelinessToken, TransportError> {
+        session
+            .liveliness()
+            .declare_token(keys::PRESENCE.key(world, Some(client)))
+            .wait()
+            .map_err(|e| TransportError::Zenoh(format!("declaring the presence: {e}")))
+    }
+
+    /// Withdraws the presence and declares it again (the server sees the client leave and join:
+    /// it welcomes it, with the avatar it has if it heard it before), once `wait` has passed.
+    fn repeat_if_due(&mut self, session: &::zenoh::Session, world: &WorldId, client: ClientId, now: Instant) {
+        if now.saturating_duration_since(self.declared) < self.wait {
+            return;
+        }
+        drop(self.token.take());
+        self.token = Presence::token(session, world, client).ok();
+        self.declared = now;
+        self.wait = (self.wait * 2).min(WELCOME_WAIT_MAX);
+        self.repeats += 1;
+    }
 }
 
 /// Whether a Zenoh session has a live link to a router or a peer.
@@ -432,11 +483,7 @@ impl Connection {
             .wait()
             .map_err(|e| TransportError::Zenoh(format!("declaring the input publisher: {e}")))?;
         // Last, so every subscription is in place when the welcome comes.
-        let token = session
-            .liveliness()
-            .declare_token(keys::PRESENCE.key(w, c))
-            .wait()
-            .map_err(|e| TransportError::Zenoh(format!("declaring the presence: {e}")))?;
+        let presence = Presence::declare(&session, w, opts.client)?;
         Ok(Connection {
             session,
             world: w.clone(),
@@ -446,7 +493,7 @@ impl Connection {
             dropped,
             linked: AtomicBool::new(true),
             _subscribers: subscribers,
-            _token: token,
+            presence: std::sync::Mutex::new(presence),
         })
     }
 
@@ -467,10 +514,19 @@ impl Connection {
                 Inbound::NoScene(why) => client.scene_unavailable(why),
             }
         }
+        if client.status() == Status::Joining {
+            let mut p = self.presence.lock().unwrap_or_else(|e| e.into_inner());
+            p.repeat_if_due(&self.session, &self.world, client.config().client, now);
+        }
         while let Some(msg) = client.poll_transmit(now) {
             self.send(&msg)?;
         }
         Ok(())
+    }
+
+    /// How many times the presence was declared again because no welcome came in time.
+    pub fn presence_repeats(&self) -> u64 {
+        self.presence.lock().map_or(0, |p| p.repeats)
     }
 
     /// Sends one message on the client's input key.
@@ -497,8 +553,8 @@ impl Connection {
     /// Withdraws the presence (the server removes the avatar after its grace period) and closes
     /// the session.
     pub fn close(self) {
-        let Connection { session, _subscribers, _token, .. } = self;
-        drop(_token);
+        let Connection { session, _subscribers, presence, .. } = self;
+        drop(presence);
         drop(_subscribers);
         let _ = session.close().wait();
     }

@@ -162,6 +162,73 @@ fn no_server_and_another_protocol_version_are_clear_errors() {
     }
 }
 
+/// A welcome that does not come (lost on its way, or the server never heard the presence) is
+/// asked for again: the joining client withdraws and declares its presence after
+/// `WELCOME_WAIT`, doubling, and stops once welcomed. The "server" here is a bare Zenoh peer that
+/// answers only the second declaration.
+#[test]
+fn a_welcome_that_does_not_come_is_asked_for_again() {
+    use impact_client::transport::WELCOME_WAIT;
+    use impact_protocol::{keys, Encoding, ServerMessage, Tick, Welcome};
+    use std::sync::atomic::{AtomicU32, Ordering::Relaxed};
+    use std::sync::Arc;
+    let port = free_port();
+    let ep = format!("tcp/127.0.0.1:{port}");
+    let mut c = zenoh::Config::default();
+    c.insert_json5("scouting/multicast/enabled", "false").unwrap();
+    c.insert_json5("listen/endpoints", &format!("[\"{ep}\"]")).unwrap();
+    let host = zenoh::open(c).wait().unwrap();
+    let world = WorldId::new("arena").unwrap();
+    let _server = host.liveliness().declare_token(keys::SERVER.key(&world, None)).wait().unwrap();
+    let joins = Arc::new(AtomicU32::new(0));
+    let j = joins.clone();
+    let _presence = host
+        .liveliness()
+        .declare_subscriber(keys::PRESENCE.any_client(&world))
+        .callback(move |s| {
+            if s.kind() == zenoh::sample::SampleKind::Put {
+                j.fetch_add(1, Relaxed);
+            }
+        })
+        .wait()
+        .unwrap();
+    let opts = ConnectOptions { scene: false, state: false, ..options(&ep, 7) };
+    let conn = Connection::open(&opts).expect("connects");
+    let mut game = Session::new(SessionConfig::new(ClientId(7)));
+    let pump_for = |game: &mut Session, d: Duration| {
+        let end = Instant::now() + d;
+        while Instant::now() < end {
+            conn.pump(game, Instant::now()).unwrap();
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    };
+    pump_for(&mut game, WELCOME_WAIT + Duration::from_millis(500));
+    assert_eq!(game.status(), Status::Joining);
+    assert!(joins.load(Relaxed) >= 2, "the presence was declared {} times", joins.load(Relaxed));
+    assert_eq!(conn.presence_repeats(), u64::from(joins.load(Relaxed) - 1));
+    let welcome = ServerMessage::Welcome(Welcome {
+        client: ClientId(7),
+        avatar: None,
+        tick: Tick(100),
+        tick_hz: 60,
+        window_ticks: 16,
+        input_lead_ticks: 2,
+        max_rewind_ticks: 16,
+        next_seq: 0,
+        scene_hash: 0,
+    });
+    let bytes = impact_protocol::encode(&welcome, Encoding::MsgPack).unwrap();
+    host.put(keys::CLIENT_ACK.key(&world, Some(ClientId(7))), bytes)
+        .encoding(Encoding::MsgPack.zenoh_tag())
+        .wait()
+        .unwrap();
+    pump_for(&mut game, Duration::from_millis(300));
+    assert_eq!(game.status(), Status::Syncing, "welcomed (its clock probes go unanswered here)");
+    let declared = joins.load(Relaxed);
+    pump_for(&mut game, WELCOME_WAIT * 3);
+    assert_eq!(joins.load(Relaxed), declared, "a welcomed client declared its presence again");
+}
+
 /// On a world whose avatars are characters, a client's velocity is refused with a typed reason
 /// (it would fly), and `move` intents walk it, predicted to the bit with the server's scene.
 #[test]

@@ -767,6 +767,9 @@ impl TickLoop {
             }
         }
         if self.clients.len() >= self.opts.max_clients && !self.clients.contains_key(&client) {
+            // Told, rather than left waiting for a welcome that will not come.
+            let why = format!("the server already serves its maximum of {} clients", self.opts.max_clients);
+            self.put(self.ack_key(client), reject(client, None, RejectReason::QueueFull, why), self.opts.encoding);
             return;
         }
         self.summary.clients += 1;
