@@ -58,35 +58,70 @@ class Role:
 
 class Confirmed:
     """Every confirmed batch heard, in the order heard: a tick past the one after the highest
-    leaves the ticks between missing; a tick heard again is compared (by a digest of its events)
-    with the first, kept for the last KEPT ticks."""
+    leaves the ticks between missing, until asked for again (`query/confirmed`: the server keeps
+    the last half minute of batches, and a standby those its primary confirmed); a tick heard
+    again is compared (by a digest of its events) with the first, kept for the last KEPT ticks.
+    A tick still missing after its query is a confirmed event lost."""
 
     KEPT = 4096
     GAPS = 100
 
     def __init__(self):
         self.digests, self.highest, self.ticks = {}, None, 0
-        self.missing, self.repeated, self.changed = 0, 0, 0
+        self.repeated, self.changed, self.recovered = 0, 0, 0
+        self.lost = set()  # ticks missing, until recovered
+        self.to_ask = []  # (first, last) ranges to ask for
         self.gaps = []  # (seconds into the run, first missing tick, ticks missing), the first GAPS
 
-    def heard(self, tick, events, t_s=0.0):
+    @property
+    def missing(self):
+        return len(self.lost)
+
+    def heard(self, tick, events, t_s=0.0, recovered=False):
         d = hashlib.sha1(msgpack.packb(events)).hexdigest()
+        if recovered and tick in self.lost:
+            self.lost.discard(tick)
+            self.recovered += 1
+            self.ticks += 1
+            self.digests[tick] = d
+            return
         if self.highest is not None and tick <= self.highest:
             old = self.digests.get(tick)
             if old is not None:
-                self.repeated += 1
+                self.repeated += not recovered
                 self.changed += old != d
             return
+        if recovered:
+            return  # asked for, and heard on the stream since
         if self.highest is not None and tick > self.highest + 1:
-            self.missing += tick - self.highest - 1
+            first, n = self.highest + 1, tick - self.highest - 1
+            self.lost.update(range(first, tick))
+            self.to_ask.append((first, tick - 1))
             if len(self.gaps) < self.GAPS:
-                self.gaps.append((t_s, self.highest + 1, tick - self.highest - 1))
-            print(f"  {t_s / 60:5.1f} min: confirmed ticks {self.highest + 1}..{tick - 1} missing",
+                self.gaps.append((t_s, first, n))
+            print(f"  {t_s / 60:5.1f} min: confirmed ticks {first}..{tick - 1} missing: asking for them",
                   file=sys.stderr, flush=True)
         self.highest, self.ticks = tick, self.ticks + 1
         self.digests[tick] = d
         while len(self.digests) > self.KEPT:
             self.digests.pop(next(iter(self.digests)))
+
+
+def ask_confirmed(session, world, first, last, confirmed, lock, t_s):
+    """Asks the world's server for the confirmed batches of ticks first..last it kept."""
+    selector = f"impact/v1/{world}/query/confirmed?from={first};to={last}"
+    # One reply per tick, all on the query's key: Zenoh would keep only the latest.
+    for reply in session.get(selector, consolidation=zenoh.ConsolidationMode.NONE, timeout=2.0):
+        if reply.ok is None:
+            continue
+        b = msgpack.unpackb(reply.ok.payload.to_bytes(), raw=False)
+        if b.get("type") == "confirmed":
+            with lock:
+                confirmed.heard(b["tick"], b.get("events", []), t_s, recovered=True)
+    with lock:
+        still = sum(1 for t in range(first, last + 1) if t in confirmed.lost)
+    print(f"  confirmed ticks {first}..{last}: {last - first + 1 - still} recovered, {still} lost",
+          file=sys.stderr, flush=True)
 
 
 def svg(rows, series, path, warmup_s):
@@ -192,6 +227,10 @@ def main():
     while time.time() < end:
         time.sleep(1)
         now = round(time.time() - t0, 1)
+        with lock:
+            asks, confirmed.to_ask = confirmed.to_ask, []
+        for first, last in asks:
+            ask_confirmed(session, args.world, first, last, confirmed, lock, now)
         for role in roles:
             pid = role.pid()
             try:
@@ -267,9 +306,10 @@ def main():
     }
     if args.confirmed:
         result.update({"confirmed_ticks": confirmed.ticks, "confirmed_missing": confirmed.missing,
+                       "confirmed_recovered": confirmed.recovered,
                        "confirmed_repeated": confirmed.repeated, "confirmed_changed": confirmed.changed,
                        "confirmed_gaps": [{"t_s": t, "from_tick": a, "ticks": n} for t, a, n in confirmed.gaps]})
-        print(f"  confirmed ticks heard {confirmed.ticks}: missing {confirmed.missing}, "
+        print(f"  confirmed ticks heard {confirmed.ticks} ({confirmed.recovered} asked for again): missing {confirmed.missing}, "
               f"published twice {confirmed.repeated} (changed {confirmed.changed})")
     print(f"  tick p99 after warm-up: median {result['tick_ms_p99_median']:.2f} ms, worst second "
           f"{result['tick_ms_p99_max']:.2f} ms; ingress queue {q_a:.0f} -> {q_b:.0f}; overruns {result['overruns']}")

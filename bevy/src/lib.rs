@@ -250,7 +250,7 @@ pub struct Closed(pub WorldClosed);
 #[derive(Debug)]
 enum Link {
     Opening(Receiver<Result<Connection, TransportError>>),
-    Open(Connection),
+    Open(Box<Connection>),
     Failed,
 }
 
@@ -371,7 +371,7 @@ fn receive(
         let Ok(mut link) = impact.link.lock() else { return };
         if let Link::Opening(rx) = &*link {
             match rx.try_recv() {
-                Ok(Ok(c)) => *link = Link::Open(c),
+                Ok(Ok(c)) => *link = Link::Open(Box::new(c)),
                 Ok(Err(e)) => {
                     impact.problem = Some(e.to_string());
                     *link = Link::Failed;

@@ -243,6 +243,9 @@ enum Inbound {
     Msg(usize, ServerMessage, Option<impact_protocol::Epoch>),
     Malformed(usize),
     Stats(impact_protocol::ServerStats),
+    /// A `query/confirmed` reply for client `k`, and the end of its answer.
+    Recovered(usize, impact_protocol::EventBatch),
+    RecoveryEnded(usize, impact_protocol::Tick),
 }
 
 /// One simulated player: an [`impact_client::Session`], the library a game uses, with what the
@@ -969,6 +972,7 @@ pub fn run(cfg: &LoadConfig) -> anyhow::Result<Report> {
             received_at_end = Some(wiring.counts());
         }
         run.downlink(&wiring, now);
+        run.recover(&wiring);
         if let Some(next) = run.closed_to() {
             run.follow(&mut wiring, next, now)?;
         }
@@ -1089,7 +1093,10 @@ impl Run<'_> {
         for (at, generation, m) in arrived {
             if generation == wiring.generation {
                 let line = match &m {
-                    Inbound::Msg(k, ..) | Inbound::Malformed(k) => wiring.session_of(*k),
+                    Inbound::Msg(k, ..)
+                    | Inbound::Malformed(k)
+                    | Inbound::Recovered(k, _)
+                    | Inbound::RecoveryEnded(k, _) => wiring.session_of(*k),
                     Inbound::Stats(_) => 0,
                 };
                 self.down[line].send(at, &self.cfg.downlink, &mut self.rng, m);
@@ -1107,6 +1114,39 @@ impl Run<'_> {
                     Inbound::Stats(s) => self.on_stats(s, now),
                     Inbound::Msg(k, msg, epoch) => self.on_message(k, msg, epoch, now),
                     Inbound::Malformed(k) => self.clients[k].session.malformed(),
+                    Inbound::Recovered(k, b) => self.clients[k].session.recovered(b),
+                    Inbound::RecoveryEnded(k, t) => self.clients[k].session.recovery_ended(t),
+                }
+            }
+        }
+    }
+
+    /// As a game's transport does: each client asks the server for the confirmed batches it
+    /// missed (`query/confirmed`); the answers come down its line like any message.
+    fn recover(&mut self, wiring: &Wiring) {
+        for (k, c) in self.clients.iter_mut().enumerate() {
+            if wiring.closed[wiring.session_of(k)] {
+                continue;
+            }
+            while let Some(t) = c.session.poll_recovery() {
+                // Bounded as the subscriptions' pushes are (a lost end is given up on in time).
+                let push = |inbox: Inbox, generation: u32, item: Inbound| {
+                    let mut q = inbox.lock().unwrap_or_else(|e| e.into_inner());
+                    if q.len() < INBOX_MAX {
+                        q.push((Instant::now(), generation, item));
+                    }
+                };
+                let (a, b, g) = (wiring.inbox.clone(), wiring.inbox.clone(), wiring.generation);
+                let asked = impact_client::transport::ask_confirmed(
+                    wiring.session(k),
+                    &self.world,
+                    c.id,
+                    t,
+                    move |batch| push(a.clone(), g, Inbound::Recovered(k, batch)),
+                    move || push(b, g, Inbound::RecoveryEnded(k, t)),
+                );
+                if asked.is_err() {
+                    c.session.recovery_ended(t);
                 }
             }
         }

@@ -6,7 +6,13 @@
 //! earlier tick with no batch of its own is final with no events for it. A game reads a tick's events as they stand with [`EventView::at`]; what it already showed
 //! and is corrected, it redraws.
 //!
-//! Bounded: at most [`MAX_TICKS`] ticks are held. The server confirms each tick once it leaves its
+//! A tick made final that way while its view still held events is in doubt: its own batch may
+//! have been lost on the way (a router dropped it, the primary died as it went out). It is held
+//! apart ([`EventView::doubtful`]) until the batch the server kept comes
+//! ([`EventView::recovered`], from `query/confirmed`) or the session gives up on it
+//! ([`EventView::give_up`]: compared with no events, as before).
+//!
+//! Bounded: at most [`MAX_TICKS`] ticks are held, and [`MAX_DOUBTFUL`] in doubt. The server confirms each tick once it leaves its
 //! rollback window, so a view holds about a window's worth; a view whose confirmations stop
 //! coming (a lost session) forgets its oldest ticks past the bound, and counts them.
 
@@ -15,6 +21,9 @@ use std::collections::BTreeMap;
 
 /// The most ticks an event view holds (about 16 seconds at 64 Hz; a window is a quarter second).
 pub const MAX_TICKS: usize = 1024;
+
+/// The most ticks in doubt at once; past it a tick is compared at once, with no events.
+pub const MAX_DOUBTFUL: usize = 64;
 
 /// Per-tick events as the client holds them.
 #[derive(Debug, Default)]
@@ -35,8 +44,12 @@ pub struct EventView {
     /// in `matched`, `mismatched` or `unverified`): a view that held events for such a tick
     /// missed their retraction or their confirmation.
     pub implied: u64,
+    /// Ticks in doubt that the batch the server kept made final.
+    pub recovered: u64,
     /// Ticks before this one may have lost provisional events or corrections to a lost link.
     lost_before: Option<Tick>,
+    /// Ticks made final by a later confirmation while they held events, with those events.
+    doubtful: BTreeMap<Tick, BTreeMap<EventKey, CollisionEvent>>,
 }
 
 fn same(a: &CollisionEvent, b: &CollisionEvent) -> bool {
@@ -89,16 +102,47 @@ impl EventView {
     /// notes) and compared with an empty batch. `each(tick, matched)` hears every tick made final,
     /// oldest first, `matched` being whether the view equalled the server's record (`false` for a
     /// tick the link was lost before: take the batch).
+    /// An earlier tick that still held events is put in doubt instead (see the module notes).
     pub fn confirm(&mut self, b: &EventBatch, mut each: impl FnMut(Tick, bool)) {
         while let Some(entry) = self.ticks.first_entry().filter(|e| *e.key() < b.tick) {
             let (tick, mine) = entry.remove_entry();
             self.implied += 1;
+            let verified = self.lost_before.is_none_or(|t| tick >= t);
+            if verified && !mine.is_empty() && self.doubtful.len() < MAX_DOUBTFUL {
+                self.doubtful.insert(tick, mine);
+                continue;
+            }
             let matched = self.compare(tick, &mine, &[]);
             each(tick, matched);
         }
         let mine = self.ticks.remove(&b.tick).unwrap_or_default();
         let matched = self.compare(b.tick, &mine, &b.events);
         each(b.tick, matched);
+    }
+
+    /// The ticks in doubt, oldest first.
+    pub fn doubtful(&self) -> impl Iterator<Item = Tick> + '_ {
+        self.doubtful.keys().copied()
+    }
+
+    /// The batch the server kept of a tick in doubt (its `query/confirmed` answer for this
+    /// client): the tick is compared with it and made final, heard by `each`. Returns whether
+    /// the tick was in doubt (a batch of any other tick is ignored).
+    pub fn recovered(&mut self, b: &EventBatch, mut each: impl FnMut(Tick, bool)) -> bool {
+        let Some(mine) = self.doubtful.remove(&b.tick) else { return false };
+        self.recovered += 1;
+        let matched = self.compare(b.tick, &mine, &b.events);
+        each(b.tick, matched);
+        true
+    }
+
+    /// Gives up on a tick in doubt (the server no longer keeps it, or did not answer): it is
+    /// final with no events for this client, as the later confirmation implied.
+    pub fn give_up(&mut self, tick: Tick, mut each: impl FnMut(Tick, bool)) {
+        if let Some(mine) = self.doubtful.remove(&tick) {
+            let matched = self.compare(tick, &mine, &[]);
+            each(tick, matched);
+        }
     }
 
     /// Counts and returns whether a final tick's view equals its confirmed events.
@@ -229,7 +273,12 @@ pub(crate) mod tests {
         v.events(&EventBatch { tick: Tick(4), revision: 0, events: vec![event(3, 4, 0.5)] });
         v.events(&EventBatch { tick: Tick(5), revision: 0, events: vec![event(1, 2, 0.25)] });
         v.events(&EventBatch { tick: Tick(7), revision: 0, events: vec![event(1, 2, 0.75)] });
-        assert_eq!(finals(&mut v, 5, vec![event(1, 2, 0.25)]), [(3, true), (4, false), (5, true)]);
+        // Tick 4 still held an event with no batch of its own: in doubt, until given up on.
+        assert_eq!(finals(&mut v, 5, vec![event(1, 2, 0.25)]), [(3, true), (5, true)]);
+        assert_eq!(v.doubtful().collect::<Vec<_>>(), [Tick(4)]);
+        let mut gave_up = Vec::new();
+        v.give_up(Tick(4), |t, m| gave_up.push((t.0, m)));
+        assert_eq!(gave_up, [(4, false)]);
         assert_eq!((v.held(), v.matched, v.mismatched, v.implied), (1, 2, 1, 2));
         assert_eq!(v.newest(), Some(Tick(7)), "later ticks stay");
         for t in 8..(8 + 3 * MAX_TICKS as u32) {
@@ -246,6 +295,32 @@ pub(crate) mod tests {
                 assert_eq!(v.held(), 0);
             }
         }
-        assert_eq!((v.forgotten, v.mismatched), (0, 2), "tick 7's event was never confirmed");
+        let doubtful: Vec<Tick> = v.doubtful().collect();
+        assert_eq!(doubtful, [Tick(7)], "tick 7's event was never confirmed");
+        v.give_up(Tick(7), |_, _| {});
+        assert_eq!((v.forgotten, v.mismatched, v.doubtful().count()), (0, 2, 0));
+    }
+
+    /// A tick in doubt (its batch lost, a later one came) is made final by the batch the server
+    /// kept: matched when the view held what it says; a batch of a tick not in doubt changes
+    /// nothing; past [`MAX_DOUBTFUL`] ticks are compared at once.
+    #[test]
+    fn a_lost_batch_recovered_makes_its_tick_final() {
+        let mut v = EventView::default();
+        v.events(&EventBatch { tick: Tick(4), revision: 0, events: vec![event(3, 4, 0.5)] });
+        assert_eq!(finals(&mut v, 6, vec![]), [(6, true)]);
+        let kept = EventBatch { tick: Tick(4), revision: 0, events: vec![event(3, 4, 0.5)] };
+        let mut heard = Vec::new();
+        assert!(!v.recovered(&EventBatch { tick: Tick(6), ..kept.clone() }, |t, m| heard.push((t.0, m))));
+        assert!(v.recovered(&kept, |t, m| heard.push((t.0, m))));
+        assert!(!v.recovered(&kept, |t, m| heard.push((t.0, m))), "once");
+        assert_eq!(heard, [(4, true)]);
+        assert_eq!((v.matched, v.mismatched, v.recovered, v.implied), (2, 0, 1, 1));
+        for t in 10..(10 + MAX_DOUBTFUL as u32 + 2) {
+            v.events(&EventBatch { tick: Tick(t), revision: 0, events: vec![event(3, 4, 0.5)] });
+        }
+        let finals = finals(&mut v, 100, vec![]);
+        assert_eq!(v.doubtful().count(), MAX_DOUBTFUL);
+        assert_eq!(finals.len(), 3, "two past the bound, and tick 100");
     }
 }

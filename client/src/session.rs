@@ -35,8 +35,9 @@ use impact_core::scene::SceneRules;
 use impact_protocol::limits::{MAX_ACTIONS_PER_INPUT, MAX_INPUTS_PER_MESSAGE};
 use impact_protocol::serial::precedes;
 use impact_protocol::{
-    Action, ClientId, ClientInput, ClientMessage, CollisionEvent, CorrectionBatch, EntityId, Epoch, FullFrameRequest,
-    InputBatch, RayResult, RejectReason, SceneDescription, ServerMessage, Tick, TimePing, Welcome, WorldClosed,
+    Action, ClientId, ClientInput, ClientMessage, CollisionEvent, CorrectionBatch, EntityId, Epoch, EventBatch,
+    FullFrameRequest, InputBatch, RayResult, RejectReason, SceneDescription, ServerMessage, Tick, TimePing, Welcome,
+    WorldClosed,
 };
 use std::collections::{BTreeMap, VecDeque};
 use std::time::{Duration, Instant};
@@ -53,6 +54,11 @@ pub const FULL_FRAME_EVERY: Duration = Duration::from_millis(250);
 
 /// A probe unanswered this long is taken as lost, and the next one is sent.
 pub const PROBE_TIMEOUT: Duration = Duration::from_millis(250);
+
+/// How long a tick in doubt (its own confirmed batch missed, see [`crate::events`]) waits for the
+/// batch the server kept (`query/confirmed`, asked by the transport through
+/// [`Session::poll_recovery`]) before it is taken as having no events for this client.
+pub const RECOVERY_WAIT: Duration = Duration::from_secs(2);
 
 /// Messages held for the transport at most; past it the oldest is dropped and counted (a
 /// transport that stopped taking them).
@@ -377,6 +383,9 @@ pub struct Session {
     /// the one that run on at the full rate puts the server furthest (a message that came late
     /// names an old tick and does not replace it), for at most [`NAMED_FOR`].
     newest_named: Option<(Tick, Instant)>,
+    /// The event view's ticks in doubt: when each went in doubt, and whether the transport was
+    /// given it to ask for.
+    recovery: BTreeMap<Tick, (Instant, bool)>,
 }
 
 impl Session {
@@ -413,6 +422,7 @@ impl Session {
             epoch: Epoch::default(),
             lost_check: None,
             newest_named: None,
+            recovery: BTreeMap::new(),
         }
     }
 
@@ -731,6 +741,43 @@ impl Session {
         }
     }
 
+    /// A tick whose confirmed batch this client missed (a later one came while it held events
+    /// of it, see [`crate::events`]): the transport asks the server for the batch it kept
+    /// (`query/confirmed?from=T;to=T;client=C`), hands each reply to [`Session::recovered`]
+    /// and says when the answer ended ([`Session::recovery_ended`]). Each tick is given once;
+    /// one not recovered within [`RECOVERY_WAIT`] is taken as having no events for this client.
+    pub fn poll_recovery(&mut self) -> Option<Tick> {
+        let (t, (_, asked)) = self.recovery.iter_mut().find(|(_, (_, asked))| !*asked)?;
+        *asked = true;
+        Some(*t)
+    }
+
+    /// A confirmed batch the server kept, from a `query/confirmed` reply: a tick in doubt is
+    /// compared with it and made final (`EventNews::Confirmed`, after later ticks').
+    pub fn recovered(&mut self, b: EventBatch) {
+        let (news, dropped) = (&mut self.news, &mut self.stats.event_news_dropped);
+        self.events.recovered(&b, |tick, matched| push_news(news, dropped, EventNews::Confirmed { tick, matched }));
+        self.recovery.remove(&b.tick);
+    }
+
+    /// The answer to the query for `tick` ended: if it brought no batch of it, the server no
+    /// longer keeps it, and the tick is final with no events for this client.
+    pub fn recovery_ended(&mut self, tick: Tick) {
+        let (news, dropped) = (&mut self.news, &mut self.stats.event_news_dropped);
+        self.events.give_up(tick, |tick, matched| push_news(news, dropped, EventNews::Confirmed { tick, matched }));
+        self.recovery.remove(&tick);
+    }
+
+    /// Ticks in doubt for longer than [`RECOVERY_WAIT`] (a transport that does not ask, or an
+    /// answer that never ended) are given up on.
+    fn give_up_recovery(&mut self, now: Instant) {
+        while let Some((&t, _)) =
+            self.recovery.iter().find(|(_, (since, _))| now.saturating_duration_since(*since) >= RECOVERY_WAIT)
+        {
+            self.recovery_ended(t);
+        }
+    }
+
     /// The newest owner epoch heard (0 before any).
     pub fn epoch(&self) -> Epoch {
         self.epoch
@@ -820,6 +867,9 @@ impl Session {
                 let (news, dropped) = (&mut self.news, &mut self.stats.event_news_dropped);
                 self.events
                     .confirm(&b, |tick, matched| push_news(news, dropped, EventNews::Confirmed { tick, matched }));
+                for t in self.events.doubtful() {
+                    self.recovery.entry(t).or_insert((now, false));
+                }
             }
             ServerMessage::RayResult(r) if r.client == me => {
                 self.stats.ray_results += 1;
@@ -1021,6 +1071,7 @@ impl Session {
     /// Call it until it returns `None` each frame.
     pub fn poll_transmit(&mut self, now: Instant) -> Option<ClientMessage> {
         self.check_lost(now);
+        self.give_up_recovery(now);
         if self.status == Status::Syncing {
             let started = *self.sync_started.get_or_insert(now);
             if now.saturating_duration_since(started) >= SYNC_TIMEOUT {
@@ -1286,6 +1337,32 @@ mod tests {
         }
         assert_eq!(s.take_event_news().count(), MAX_EVENT_NEWS);
         assert_eq!(s.stats().event_news_dropped, 5);
+    }
+
+    /// A tick whose own confirmed batch was lost (a later one came while it held an event) is
+    /// given to the transport to ask for, once, and made final by the batch the server kept;
+    /// another, never answered, is given up on after [`RECOVERY_WAIT`] as having no events.
+    #[test]
+    fn a_missed_confirmed_batch_is_asked_for_and_given_up_on_in_time() {
+        use impact_protocol::EventBatch;
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig::new(ClientId(7)));
+        s.receive(welcome(0), t0);
+        let e = |t: u32| CollisionEvent { tick: Tick(t), ..crate::events::tests::event(1, 2, 0.5) };
+        let batch = |t: u32, events| EventBatch { tick: Tick(t), revision: 0, events };
+        for t in [101, 102] {
+            s.receive(ServerMessage::Events(batch(t, vec![e(t)])), t0);
+        }
+        s.receive(ServerMessage::Confirmed(batch(103, vec![])), t0);
+        let _ = s.take_event_news().count();
+        assert_eq!((s.poll_recovery(), s.poll_recovery(), s.poll_recovery()), (Some(Tick(101)), Some(Tick(102)), None));
+        s.recovered(batch(101, vec![e(101)]));
+        assert_eq!(s.take_event_news().collect::<Vec<_>>(), [EventNews::Confirmed { tick: Tick(101), matched: true }]);
+        while s.poll_transmit(t0 + RECOVERY_WAIT / 2).is_some() {}
+        assert_eq!(s.take_event_news().count(), 0, "tick 102 still waits");
+        while s.poll_transmit(t0 + RECOVERY_WAIT).is_some() {}
+        assert_eq!(s.take_event_news().collect::<Vec<_>>(), [EventNews::Confirmed { tick: Tick(102), matched: false }]);
+        assert_eq!((s.events().recovered, s.events().matched, s.events().mismatched), (1, 2, 1));
     }
 
     /// Each input's first answer reaches the game once, typed, with its round trip; a second

@@ -25,8 +25,8 @@ use crate::session::{Session, Status};
 use ::zenoh::Wait;
 use impact_protocol::limits::MAX_SERVER_MESSAGE_BYTES;
 use impact_protocol::{
-    encode, keys, ClientId, ClientMessage, Encoding, Epoch, SceneDescription, ServerMessage, WorldAnswer, WorldCommand,
-    WorldId,
+    encode, keys, ClientId, ClientMessage, Encoding, Epoch, EventBatch, SceneDescription, ServerMessage, Tick,
+    WorldAnswer, WorldCommand, WorldId,
 };
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
@@ -230,6 +230,56 @@ enum Inbound {
     Msg(ServerMessage, Option<Epoch>, Instant),
     Malformed,
     NoScene(String),
+    /// A `query/confirmed` reply: a batch the client missed.
+    Recovered(EventBatch),
+    /// The `query/confirmed` answer for this tick ended.
+    RecoveryEnded(Tick),
+}
+
+/// How long a `query/confirmed` waits for its replies.
+pub const RECOVERY_QUERY_TIMEOUT: Duration = Duration::from_secs(1);
+
+/// Asks the server for the confirmed batch of `tick` it kept for `client`
+/// (`query/confirmed?from=T;to=T;client=C`, see [`crate::Session::poll_recovery`]): `batch`
+/// hears the batch if the server still keeps it, `ended` hears that the answer ended (Zenoh drops
+/// the callback then, after its last reply or at [`RECOVERY_QUERY_TIMEOUT`]).
+pub fn ask_confirmed(
+    session: &::zenoh::Session,
+    world: &WorldId,
+    client: ClientId,
+    tick: Tick,
+    batch: impl Fn(EventBatch) + Send + Sync + 'static,
+    ended: impl FnOnce() + Send + Sync + 'static,
+) -> Result<(), TransportError> {
+    /// Calls `ended` when the query's callback is dropped.
+    struct Ended<F: FnOnce()>(Option<F>);
+    impl<F: FnOnce()> Drop for Ended<F> {
+        fn drop(&mut self) {
+            if let Some(f) = self.0.take() {
+                f();
+            }
+        }
+    }
+    let guard = Ended(Some(ended));
+    let selector =
+        format!("{}?from={};to={};client={}", keys::QUERY_CONFIRMED.key(world, None), tick.0, tick.0, client.0);
+    session
+        .get(selector)
+        // One reply per tick, all on the query's key: Zenoh would keep only the latest.
+        .consolidation(::zenoh::query::ConsolidationMode::None)
+        .timeout(RECOVERY_QUERY_TIMEOUT)
+        .callback(move |reply| {
+            let _ = &guard;
+            if let Ok(ServerMessage::Confirmed(b)) =
+                reply.result().map_err(|_| ()).and_then(|s| decode_server(s).map_err(|_| ()))
+            {
+                if b.tick == tick {
+                    batch(b);
+                }
+            }
+        })
+        .wait()
+        .map_err(|e| TransportError::Zenoh(format!("asking for a confirmed batch: {e}")))
 }
 
 /// A reply to `query/scene`: the scene, why there is none, or a payload that is not one.
@@ -346,6 +396,8 @@ pub struct Connection {
     input: ::zenoh::pubsub::Publisher<'static>,
     encoding: Encoding,
     inbox: Receiver<Inbound>,
+    /// The inbox's sending side, for the answers to `query/confirmed`.
+    tx: SyncSender<Inbound>,
     dropped: Arc<AtomicU64>,
     /// Whether the session had a link to a router or peer at the last pump.
     linked: AtomicBool,
@@ -490,6 +542,7 @@ impl Connection {
             input,
             encoding: opts.encoding,
             inbox,
+            tx,
             dropped,
             linked: AtomicBool::new(true),
             _subscribers: subscribers,
@@ -512,6 +565,26 @@ impl Connection {
                 Inbound::Msg(m, epoch, at) => client.receive_from(epoch, m, at),
                 Inbound::Malformed => client.malformed(),
                 Inbound::NoScene(why) => client.scene_unavailable(why),
+                Inbound::Recovered(b) => client.recovered(b),
+                Inbound::RecoveryEnded(t) => client.recovery_ended(t),
+            }
+        }
+        while let Some(t) = client.poll_recovery() {
+            let (tx, done) = (self.tx.clone(), self.tx.clone());
+            let asked = ask_confirmed(
+                &self.session,
+                &self.world,
+                client.config().client,
+                t,
+                move |b| {
+                    let _ = tx.try_send(Inbound::Recovered(b));
+                },
+                move || {
+                    let _ = done.try_send(Inbound::RecoveryEnded(t));
+                },
+            );
+            if asked.is_err() {
+                client.recovery_ended(t);
             }
         }
         if client.status() == Status::Joining {

@@ -38,6 +38,11 @@ pub const PRESENCE: KeyPattern = KeyPattern { name: "presence", pattern: "impact
 pub const QUERY_STATE: KeyPattern = KeyPattern { name: "query_state", pattern: "impact/v1/{world}/query/state" };
 /// Queryable: events of a tick range (`?from=T1;to=T2`).
 pub const QUERY_HISTORY: KeyPattern = KeyPattern { name: "query_history", pattern: "impact/v1/{world}/query/history" };
+/// Queryable: the confirmed batches of recent ticks (`?from=T1;to=T2`, with `client=C` as that
+/// client's stream carries them), one reply per tick the server still keeps: a subscriber that
+/// missed a batch gets it again.
+pub const QUERY_CONFIRMED: KeyPattern =
+    KeyPattern { name: "query_confirmed", pattern: "impact/v1/{world}/query/confirmed" };
 /// Queryable: the rules and static world as the core runs them
 /// ([`SceneDescription`](crate::SceneDescription)), for a client that predicts.
 pub const QUERY_SCENE: KeyPattern = KeyPattern { name: "query_scene", pattern: "impact/v1/{world}/query/scene" };
@@ -68,7 +73,7 @@ pub const CLIENT_STATE: KeyPattern =
     KeyPattern { name: "client_state", pattern: "impact/v1/{world}/client/{client}/state" };
 
 /// Every key impact uses.
-pub const PATTERNS: [KeyPattern; 19] = [
+pub const PATTERNS: [KeyPattern; 20] = [
     INPUT,
     EVENTS,
     CORRECTIONS,
@@ -79,6 +84,7 @@ pub const PATTERNS: [KeyPattern; 19] = [
     PRESENCE,
     QUERY_STATE,
     QUERY_HISTORY,
+    QUERY_CONFIRMED,
     QUERY_SCENE,
     LOG,
     LOG_ADMITTED,

@@ -161,9 +161,12 @@ impl Users {
         let client_tree = |c: u32| format!("impact/{}/*/client/{c}/**", keys::VERSION);
         let rule = |id: String, keys: Vec<String>, messages: &[&str], flow: &str| json!({"id": id, "key_exprs": keys, "messages": messages, "flows": [flow], "permission": "allow"});
         let public: Vec<String> = PUBLIC.iter().map(|p| all(*p)).collect();
-        // The state, history and scene queries; the checkpoint (every seq window) is for servers.
-        let queries: Vec<String> =
-            [keys::QUERY_STATE, keys::QUERY_HISTORY, keys::QUERY_SCENE].iter().map(|p| all(*p)).collect();
+        // The state, history, confirmed and scene queries; the checkpoint (every seq window) is
+        // for servers.
+        let queries: Vec<String> = [keys::QUERY_STATE, keys::QUERY_HISTORY, keys::QUERY_CONFIRMED, keys::QUERY_SCENE]
+            .iter()
+            .map(|p| all(*p))
+            .collect();
         let everything = vec![format!("impact/{}/**", keys::VERSION)];
         let every_message = [
             "put",

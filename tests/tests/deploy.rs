@@ -6,7 +6,7 @@
 mod common;
 
 use common::process::{server_binary, Proc};
-use common::{answers, free_port, join};
+use common::{answers, free_port, join, query_all};
 use impact_client_sim::net::{self, Mode};
 use impact_protocol::{
     encode, keys, ClientId, ClientInput, ClientMessage, Encoding, Epoch, ServerMessage, Tick, WorldId,
@@ -216,6 +216,8 @@ struct Published {
     log_ticks: Vec<(Tick, Instant)>,
     logged_inputs: BTreeMap<(u32, u32), u32>,
     confirmed_ticks: Vec<Tick>,
+    /// The confirmed batches heard, by tick.
+    confirmed: BTreeMap<u32, impact_protocol::EventBatch>,
 }
 
 impl Published {
@@ -231,6 +233,7 @@ impl Published {
         for (_, m, _) in confirmed.drain() {
             if let ServerMessage::Confirmed(b) = m {
                 self.confirmed_ticks.push(b.tick);
+                self.confirmed.insert(b.tick.0, b);
             }
         }
     }
@@ -279,12 +282,14 @@ fn a_standby_takes_over_from_a_killed_primary() {
     let started = Instant::now();
     let mut killed: Option<Instant> = None;
     let mut seen = Published::default();
+    let mut kill_tick = None;
     let mut rng = 7u64;
     let mut rejects = Vec::new();
     while started.elapsed() < Duration::from_secs(9) {
         if killed.is_none() && started.elapsed() > Duration::from_secs(4) {
             primary.signal("KILL");
             killed = Some(Instant::now());
+            kill_tick = seen.confirmed_ticks.last().copied();
             let _ = primary.wait(Duration::from_secs(5));
         }
         for (key, m, at) in acks.drain() {
@@ -330,6 +335,8 @@ fn a_standby_takes_over_from_a_killed_primary() {
         }
         std::thread::sleep(Duration::from_millis(25));
     }
+    seen.take(&log, &confirmed);
+    recovers_confirmed_batches(&s, &world, &seen, kill_tick.expect("ticks were confirmed before the kill"), &players);
     // Stop the standby: it confirms what is left in its window, once.
     let status = standby.stop();
     let out = standby.output();
@@ -398,6 +405,50 @@ fn a_standby_takes_over_from_a_killed_primary() {
     let text = String::from_utf8_lossy(&replay.stdout);
     let _ = std::fs::remove_file(&record);
     assert!(replay.status.success() && text.contains("every recorded state hash reproduced"), "replay:\n{text}");
+}
+
+/// A subscriber that missed a confirmed batch asks for it again (`query/confirmed`): the standby
+/// that took over answers for 2 s of ticks around the kill, those its primary confirmed (as it
+/// heard them) and its own, each as the stream carried it; for one client, the batch its own
+/// stream carries (the events of its avatar), an empty one for a tick without.
+fn recovers_confirmed_batches(s: &zenoh::Session, world: &WorldId, seen: &Published, kill: Tick, players: &[Player]) {
+    let (from, to) = (kill.0 - 64, kill.0 + 64);
+    let key = keys::QUERY_CONFIRMED.key(world, None);
+    let answered: BTreeMap<u32, impact_protocol::EventBatch> =
+        query_all(s, key.clone(), &format!("from={from};to={to}"))
+            .into_iter()
+            .filter_map(|m| match m {
+                ServerMessage::Confirmed(b) => Some((b.tick.0, b)),
+                _ => None,
+            })
+            .collect();
+    assert_eq!(answered.keys().copied().collect::<Vec<_>>(), (from..=to).collect::<Vec<_>>(), "ticks answered");
+    let mut events = 0;
+    for t in from..=to {
+        assert_eq!(
+            answered.get(&t),
+            seen.confirmed.get(&t),
+            "tick {t}: the answer is not the batch the stream carried"
+        );
+        events += answered[&t].events.len();
+    }
+    assert!(events > 0, "no events around the kill: the per-client answer is not tested");
+    let p = players.iter().find(|p| p.avatar.is_some()).expect("a player with an avatar");
+    let avatar = p.avatar.expect("checked");
+    let mine = query_all(s, key, &format!("from={from};to={to};client={}", p.id.0));
+    assert_eq!(mine.len(), answered.len(), "one batch per tick for client {}", p.id);
+    let mut own = 0;
+    for m in mine {
+        let ServerMessage::Confirmed(b) = m else { panic!("not a confirmed batch: {m:?}") };
+        let expected: Vec<_> =
+            answered[&b.tick.0].events.iter().filter(|e| e.a == avatar || e.b == avatar).cloned().collect();
+        own += expected.len();
+        assert_eq!(b.events, expected, "tick {}: client {}'s batch", b.tick.0, p.id);
+    }
+    eprintln!(
+        "failover: query/confirmed answered ticks {from}..={to} ({events} events, {own} of client {}) as the stream had them",
+        p.id
+    );
 }
 
 /// What one owner of a world published, as a tap through the router saw it.

@@ -39,8 +39,8 @@ pub enum Out {
     Reply {
         /// The query.
         query: zenoh::query::Query,
-        /// Payload.
-        bytes: Vec<u8>,
+        /// The replies, in order (none: the query ends unanswered).
+        replies: Vec<Vec<u8>>,
         /// Its encoding.
         encoding: Encoding,
     },
@@ -102,13 +102,13 @@ pub fn run(session: zenoh::Session, rx: Receiver<Out>, failures: Arc<AtomicU64>,
             Out::Log { key, msg, encoding } => {
                 encode(&*msg, encoding).is_ok_and(|bytes| blocking.put(key, bytes, encoding, stamp))
             }
-            Out::Reply { query, bytes, encoding } => {
+            Out::Reply { query, replies, encoding } => replies.into_iter().all(|bytes| {
                 let reply = query.reply(query.key_expr().clone(), bytes).encoding(encoding.zenoh_tag());
                 match stamp {
                     Some(a) => reply.attachment(a.to_vec()).wait().is_ok(),
                     None => reply.wait().is_ok(),
                 }
-            }
+            }),
         };
         if !ok {
             failures.fetch_add(1, Ordering::Relaxed);

@@ -22,6 +22,7 @@ mod answer;
 mod capture;
 mod host;
 mod ingress;
+mod recent;
 mod standby;
 mod stats;
 mod summary;

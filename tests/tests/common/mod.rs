@@ -126,6 +126,26 @@ pub fn query(s: &zenoh::Session, key: String, params: &str) -> Option<ServerMess
     impact_client_sim::net::decode_server(reply.result().ok()?).ok()
 }
 
+/// Queries a server key with parameters and takes every reply (a query answered with one reply
+/// per item, on the query's key: Zenoh's consolidation would keep only the latest).
+pub fn query_all(s: &zenoh::Session, key: String, params: &str) -> Vec<ServerMessage> {
+    let Ok(replies) = s
+        .get(format!("{key}?{params}"))
+        .consolidation(zenoh::query::ConsolidationMode::None)
+        .timeout(Duration::from_secs(5))
+        .wait()
+    else {
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    while let Ok(reply) = replies.recv() {
+        if let Some(m) = reply.result().ok().and_then(|r| impact_client_sim::net::decode_server(r).ok()) {
+            out.push(m);
+        }
+    }
+    out
+}
+
 /// Whether `m` answers input `seq` (its ack or its reject).
 pub fn answers(m: &ServerMessage, seq: u32) -> bool {
     match m {

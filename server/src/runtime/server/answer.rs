@@ -1,9 +1,11 @@
 //! Answers to the queries a server declares: the state at a tick, the events of a range, the
-//! rules and static world a client predicts with, and the checkpoint a standby starts from.
+//! confirmed batches of recent ticks, the rules and static world a client predicts with, and the
+//! checkpoint a standby starts from.
 //! Answered by the tick thread from its history, replied by the egress thread.
 
+use super::recent::MAX_QUERY_TICKS;
 use super::{Out, TickLoop};
-use impact_protocol::{encode, EventHistory, QueryError, ServerMessage, Tick};
+use impact_protocol::{encode, ClientId, Encoding, EventHistory, QueryError, ServerMessage, Tick};
 use std::sync::atomic::Ordering;
 
 impl TickLoop {
@@ -33,6 +35,22 @@ impl TickLoop {
                 }
                 Err(e) => ServerMessage::QueryError(QueryError { detail: e }),
             }
+        } else if key.ends_with("/query/confirmed") {
+            let client = params
+                .get("client")
+                .map(|v| v.parse::<u32>().map(ClientId).map_err(|_| format!("client={v} is not a client id")));
+            let replies = match (parse("from").transpose(), parse("to").transpose(), client.transpose()) {
+                (Ok(Some(from)), Ok(Some(to)), Ok(client)) if from <= to && to.0 - from.0 < MAX_QUERY_TICKS => {
+                    self.recent.batches(from, to, client).into_iter().map(ServerMessage::Confirmed).collect()
+                }
+                (Err(e), _, _) | (_, Err(e), _) | (_, _, Err(e)) => {
+                    vec![ServerMessage::QueryError(QueryError { detail: e })]
+                }
+                _ => vec![ServerMessage::QueryError(QueryError {
+                    detail: format!("confirmed needs from=T1;to=T2 with T1 <= T2, at most {MAX_QUERY_TICKS} ticks"),
+                })],
+            };
+            return self.reply(q, &replies, encoding);
         } else if key.ends_with("/query/scene") {
             ServerMessage::Scene(Box::new(self.described.clone()))
         } else if key.ends_with("/query/state") {
@@ -83,10 +101,14 @@ impl TickLoop {
                 }),
             }
         };
-        if let Ok(bytes) = encode(&msg, encoding) {
-            if self.egress.try_send(Out::Reply { query: q, bytes, encoding }).is_err() {
-                self.shared.egress_dropped.fetch_add(1, Ordering::Relaxed);
-            }
+        self.reply(q, std::slice::from_ref(&msg), encoding);
+    }
+
+    /// Hands the egress thread the replies to `q` (none: the query ends unanswered).
+    fn reply(&self, query: zenoh::query::Query, msgs: &[ServerMessage], encoding: Encoding) {
+        let replies = msgs.iter().filter_map(|m| encode(m, encoding).ok()).collect();
+        if self.egress.try_send(Out::Reply { query, replies, encoding }).is_err() {
+            self.shared.egress_dropped.fetch_add(1, Ordering::Relaxed);
         }
     }
 }

@@ -124,7 +124,9 @@ pub(super) fn declare_primary(
 
     // Queries: answered by the tick thread (it owns the history), replied by the egress thread.
     let mut queryables = Vec::new();
-    for pattern in [keys::QUERY_STATE, keys::QUERY_HISTORY, keys::QUERY_SCENE, keys::QUERY_CHECKPOINT] {
+    for pattern in
+        [keys::QUERY_STATE, keys::QUERY_HISTORY, keys::QUERY_CONFIRMED, keys::QUERY_SCENE, keys::QUERY_CHECKPOINT]
+    {
         let tx = wiring.queries.clone();
         let q = zs
             .declare_queryable(pattern.key(world_id, None))

@@ -13,13 +13,14 @@
 //! primary puts a tick's log entry before its confirmed events, so a primary killed between the
 //! two leaves a tick logged but not confirmed: the standby keeps the two marks apart.
 
+use super::recent::KEPT_TICKS;
 use super::{Control, RuntimeError, TickLoop};
 use crate::rollback::log::{self, ConfirmedTick};
 use crate::rollback::{Advance, Session};
 use crate::runtime::owner::{epoch_of, reachable, Owner, HOLD_REACHABLE};
 use impact_core::sim::{SystemAction, TickInput};
 use impact_protocol::{
-    decode, keys, Admitted, CollisionEvent, Encoding, EventKey, LogTick, ServerMessage, Tick, WorldId,
+    decode, keys, Admitted, CollisionEvent, Encoding, EventBatch, EventKey, LogTick, ServerMessage, Tick, WorldId,
 };
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -69,7 +70,7 @@ impl Published {
 
 enum Followed {
     Log(LogTick),
-    Confirmed(Tick),
+    Confirmed(EventBatch),
     Admitted(Admitted),
     Published(ServerMessage),
     PrimaryUp,
@@ -103,7 +104,7 @@ impl Follower {
                     let msg = match decode::<ServerMessage>(&bytes, enc, MAX_CHECKPOINT_BYTES) {
                         Ok(ServerMessage::Log(l)) => Followed::Log(l),
                         Ok(ServerMessage::Admitted(a)) => Followed::Admitted(a),
-                        Ok(ServerMessage::Confirmed(b)) => Followed::Confirmed(b.tick),
+                        Ok(ServerMessage::Confirmed(b)) => Followed::Confirmed(b),
                         Ok(m @ (ServerMessage::Events(_) | ServerMessage::Corrections(_))) => Followed::Published(m),
                         _ => return,
                     };
@@ -146,6 +147,9 @@ struct Unconfirmed {
     newest: Option<Tick>,
     /// The newest tick the primary confirmed the events of.
     confirmed: Option<Tick>,
+    /// The confirmed batches heard, until kept for `query/confirmed` (see
+    /// [`TickLoop::keep_heard`]), at most [`KEPT_TICKS`].
+    batches: VecDeque<EventBatch>,
     /// When the primary last said anything (a log entry, admitted inputs, events).
     heard: Option<Instant>,
 }
@@ -156,10 +160,16 @@ impl Unconfirmed {
         self.admitted = self.admitted.split_off(&(t.0 + 1));
     }
 
-    /// Forgets the events up to the confirmed tick `t`: clients have them as final.
-    fn confirmed(&mut self, t: Tick) {
+    /// Forgets the events up to the confirmed tick `b.tick` (clients have them as final), and
+    /// holds the batch to keep.
+    fn confirmed(&mut self, b: EventBatch) {
+        let t = b.tick;
         self.confirmed = self.confirmed.max(Some(t));
         self.published = self.published.split_off(&(t.0 + 1));
+        if self.batches.len() >= KEPT_TICKS {
+            self.batches.pop_front();
+        }
+        self.batches.push_back(b);
     }
 
     fn admit(&mut self, a: Admitted, avatar: log::AvatarShape<'_>) -> Result<(), String> {
@@ -288,13 +298,14 @@ impl TickLoop {
                     return true;
                 }
             }
+            self.keep_heard(&mut pending.batches, synced.then(|| self.session.now()));
             let got = f.rx.recv_timeout(Duration::from_millis(20));
             if let Ok(Followed::Log(_) | Followed::Admitted(_) | Followed::Published(_) | Followed::Confirmed(_)) = &got
             {
                 pending.heard = Some(Instant::now());
             }
             match got {
-                Ok(Followed::Confirmed(t)) => pending.confirmed(t),
+                Ok(Followed::Confirmed(b)) => pending.confirmed(b),
                 Ok(Followed::Log(l)) => {
                     pending.logged(l.tick);
                     if synced {
@@ -329,6 +340,17 @@ impl TickLoop {
                 Err(RecvTimeoutError::Timeout) => {}
                 Err(RecvTimeoutError::Disconnected) => return false,
             }
+        }
+    }
+
+    /// Keeps the confirmed batches heard from the primary for `query/confirmed`, as they went
+    /// out, with their bodies' owners: those of the ticks before `before` (the present of a
+    /// replica in step: a tick's log may come after its batch; none while it is not).
+    fn keep_heard(&mut self, heard: &mut VecDeque<EventBatch>, before: Option<Tick>) {
+        while let Some(b) = heard.front().filter(|b| before.is_some_and(|t| b.tick < t)) {
+            let owners = self.owners(&b.events, b.tick);
+            let b = heard.pop_front().expect("looked at");
+            self.recent.keep(b, owners);
         }
     }
 
@@ -427,6 +449,7 @@ impl TickLoop {
     /// The primary is gone: re-simulate its unconfirmed ticks with every input it acked, and
     /// publish them as this server's.
     fn take_over(&mut self, mut pending: Unconfirmed) {
+        self.keep_heard(&mut pending.batches, Some(Tick(u32::MAX)));
         // Owned above every epoch heard: the old primary, if it comes back, is fenced by it.
         let owner = self.shared.owner.clone();
         owner.own(owner.newest().next());

@@ -20,7 +20,7 @@ use impact_protocol::{
     keys, Admitted, ClientId, CollisionEvent, Encoding, EntityId, Epoch, EventBatch, InputAck, InputReject,
     LoggedInput, OwnerNotice, RejectReason, ServerMessage, Tick, TimePing, TimePong, Welcome, WorldClosed, WorldId,
 };
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender};
 use std::sync::Arc;
@@ -67,6 +67,8 @@ pub(super) struct TickLoop {
     /// Marks a standby that took over keeps of what its primary published, so it never publishes
     /// a tick twice (see [`Published`]).
     pub(super) earlier: Published,
+    /// The confirmed batches of recent ticks, for `query/confirmed`.
+    pub(super) recent: super::recent::Recent,
     /// The world's [`scene_hash`](impact_core::sim::World::scene_hash), sent in each welcome.
     pub(super) scene_hash: u64,
     /// The rules and static world, as `query/scene` answers them.
@@ -124,6 +126,7 @@ impl TickLoop {
             admitted: Admitted { tick: Tick(0), system: Vec::new(), inputs: Vec::new() },
             acks: Vec::new(),
             earlier: Published::default(),
+            recent: Default::default(),
         }
     }
 
@@ -701,6 +704,11 @@ impl TickLoop {
             }
             self.put_log(keys::LOG.key(&self.world, None), ServerMessage::Log(entry));
         }
+        // Kept for `query/confirmed`: a tick its primary confirmed was kept as heard, and stays.
+        if let Some(c) = adv.confirmed.as_ref().filter(|c| !self.recent.has(c.tick)) {
+            let owners = self.owners(&c.events, c.tick);
+            self.recent.keep(c.clone(), owners);
+        }
         if let Some(c) = adv.confirmed.as_ref().filter(|c| !self.earlier.confirmed(c.tick)) {
             self.summary.confirmed_events += c.events.len() as u64;
             if !c.events.is_empty() {
@@ -790,6 +798,17 @@ impl TickLoop {
     /// Publishes, for each client owning an entity in `events`, the batch `make` builds from the
     /// events that concern it.
     fn per_client(&self, events: &[CollisionEvent], tick: Tick, make: impl Fn(Vec<CollisionEvent>) -> ServerMessage) {
+        let owners = self.owners(events, tick);
+        let clients: BTreeSet<ClientId> = owners.iter().flatten().flatten().copied().collect();
+        for client in clients {
+            let e = self.clients.get(&client).map_or(self.opts.encoding, |c| c.encoding);
+            self.put(self.events_key(client), make(super::recent::mine(events, &owners, client)), e);
+        }
+    }
+
+    /// The clients owning the two bodies of each event of `tick`: as the world has them now, or
+    /// as it had them at `tick` for a body gone since.
+    pub(super) fn owners(&self, events: &[CollisionEvent], tick: Tick) -> Vec<[Option<ClientId>; 2]> {
         let w = self.session.world();
         let past = self.session.frame(tick).map(|f| &f.state);
         let owner = |id: EntityId| {
@@ -798,20 +817,7 @@ impl TickLoop {
                 .and_then(|s| w.bodies.owner[s])
                 .or_else(|| past.and_then(|p| p.bodies.slot(id).and_then(|s| p.bodies.owner[s])))
         };
-        let mut by_client: BTreeMap<ClientId, Vec<CollisionEvent>> = BTreeMap::new();
-        for e in events {
-            let (oa, ob) = (owner(e.a), owner(e.b));
-            for c in [oa, ob].into_iter().flatten() {
-                let v = by_client.entry(c).or_default();
-                if v.last().is_none_or(|l| l.key() != e.key()) {
-                    v.push(e.clone());
-                }
-            }
-        }
-        for (client, evs) in by_client {
-            let e = self.clients.get(&client).map_or(self.opts.encoding, |c| c.encoding);
-            self.put(self.events_key(client), make(evs), e);
-        }
+        events.iter().map(|e| [owner(e.a), owner(e.b)]).collect()
     }
 }
 
