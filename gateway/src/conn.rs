@@ -15,6 +15,7 @@ use crate::wire::{close_reason, encode_notice, Close, Hello, Notice, Request};
 use axum::extract::ws::{CloseFrame, Message, WebSocket};
 use futures_util::stream::{SplitSink, SplitStream};
 use futures_util::{SinkExt, StreamExt};
+use impact_client::transport::{WELCOME_WAIT, WELCOME_WAIT_MAX};
 use impact_protocol::limits::MAX_CLIENT_MESSAGE_BYTES;
 use impact_protocol::{ClientMessage, Encoding};
 use std::sync::atomic::Ordering::Relaxed;
@@ -103,6 +104,9 @@ async fn relay(
 ) -> (Close, String) {
     let mut bucket = Bucket::new(gw.config.max_messages_per_s);
     let mut batch = Vec::new();
+    // While no welcome comes, the presence is declared again (after 1 s, doubling up to 8 s).
+    let mut welcome_wait = WELCOME_WAIT;
+    let mut announce_at = tokio::time::Instant::now() + welcome_wait;
     loop {
         // Whatever is queued goes out before the connection waits again.
         mailbox.drain_into(&mut batch);
@@ -114,8 +118,18 @@ async fn relay(
         if let Some(why) = mailbox.closing() {
             return why;
         }
+        let joining = link.upgrade().is_some_and(|l| !l.welcomed());
         tokio::select! {
             _ = mailbox.wake.notified() => {}
+            _ = tokio::time::sleep_until(announce_at), if joining => {
+                if let Some(l) = link.upgrade() {
+                    if l.announce_again().await.is_ok() {
+                        gw.counters.presence_repeats.fetch_add(1, Relaxed);
+                    }
+                }
+                welcome_wait = (welcome_wait * 2).min(WELCOME_WAIT_MAX);
+                announce_at = tokio::time::Instant::now() + welcome_wait;
+            }
             msg = rx.next() => {
                 let msg = match msg {
                     None | Some(Ok(Message::Close(_))) => return (Close::Gone, String::new()),

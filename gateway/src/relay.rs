@@ -13,7 +13,7 @@ use impact_client::transport::epoch_of;
 use impact_protocol::limits::MAX_SERVER_MESSAGE_BYTES;
 use impact_protocol::{keys, Encoding, ServerMessage, WorldId};
 use std::collections::BTreeMap;
-use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -55,7 +55,12 @@ pub struct Relay {
 pub struct Link {
     input: zenoh::pubsub::Publisher<'static>,
     _subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
-    _token: zenoh::liveliness::LivelinessToken,
+    /// Set by the first message on the player's answers key: its welcome.
+    answered: Arc<AtomicBool>,
+    /// The presence token, and what re-declaring it needs.
+    token: tokio::sync::Mutex<Option<zenoh::liveliness::LivelinessToken>>,
+    session: zenoh::Session,
+    presence: String,
 }
 
 impl Link {
@@ -63,6 +68,23 @@ impl Link {
     /// key.
     pub async fn send(&self, bytes: Vec<u8>) -> Result<(), RelayError> {
         self.input.put(bytes).await.map_err(|e| RelayError::Zenoh(e.to_string()))
+    }
+
+    /// Whether anything came on the player's answers key yet (the welcome comes first).
+    pub fn welcomed(&self) -> bool {
+        self.answered.load(Relaxed)
+    }
+
+    /// Withdraws the player's presence and declares it again, as the Rust client's transport does
+    /// while no welcome comes (`impact_client::transport::WELCOME_WAIT`): the server welcomes
+    /// each declaration.
+    pub async fn announce_again(&self) -> Result<(), RelayError> {
+        let mut token = self.token.lock().await;
+        drop(token.take());
+        *token = Some(
+            self.session.liveliness().declare_token(&self.presence).await.map_err(zerr("declaring the presence"))?,
+        );
+        Ok(())
     }
 }
 
@@ -143,8 +165,10 @@ impl Relay {
             wanted.push((keys::CLIENT_STATE.key(w, c), Kind::State));
         }
         let mut subscribers = Vec::new();
+        let answered = Arc::new(AtomicBool::new(false));
         for (key, kind) in wanted {
             let (mailbox, floor) = (mailbox.clone(), floor.clone());
+            let answers = (key == keys::CLIENT_ACK.key(w, c)).then(|| answered.clone());
             let sub = self
                 .session
                 .declare_subscriber(key)
@@ -155,6 +179,9 @@ impl Relay {
                             mailbox.count_stale_owner();
                             return;
                         }
+                    }
+                    if let Some(a) = &answers {
+                        a.store(true, Relaxed);
                     }
                     match as_msgpack(&sample) {
                         Some(bytes) => mailbox.deliver(kind, bytes),
@@ -171,13 +198,16 @@ impl Relay {
             .encoding(Encoding::MsgPack.zenoh_tag())
             .await
             .map_err(zerr("declaring the input publisher"))?;
-        let token = self
-            .session
-            .liveliness()
-            .declare_token(keys::PRESENCE.key(w, c))
-            .await
-            .map_err(zerr("declaring the presence"))?;
-        Ok(Link { input, _subscribers: subscribers, _token: token })
+        let presence = keys::PRESENCE.key(w, c);
+        let token = self.session.liveliness().declare_token(&presence).await.map_err(zerr("declaring the presence"))?;
+        Ok(Link {
+            input,
+            _subscribers: subscribers,
+            answered,
+            token: tokio::sync::Mutex::new(Some(token)),
+            session: self.session.clone(),
+            presence,
+        })
     }
 
     /// The world's scene (`query/scene`) as the server answered it, MessagePack; a

@@ -36,6 +36,8 @@ pub struct Counters {
     pub stale_owner: AtomicU64,
     /// Samples from the servers that did not decode, dropped.
     pub malformed_from_server: AtomicU64,
+    /// Presences declared again because a player's welcome had not come.
+    pub presence_repeats: AtomicU64,
     /// How long answers, events and the rest of what is never dropped stayed in the gateway:
     /// from their sample's arrival to their write to the browser, microseconds, since start.
     relay_us: Mutex<Option<hdrhistogram::Histogram<u64>>>,
@@ -68,6 +70,8 @@ pub struct Snapshot {
     pub stale_owner: u64,
     /// See [`Counters`].
     pub malformed_from_server: u64,
+    /// See [`Counters`].
+    pub presence_repeats: u64,
     /// Messages never dropped (answers, events, ...) relayed to browsers, and their time in the
     /// gateway from arrival to write, microseconds: median, 99th percentile, most.
     pub relayed_kept: u64,
@@ -123,6 +127,7 @@ impl Counters {
             state_dropped: self.state_dropped.load(Relaxed),
             stale_owner: self.stale_owner.load(Relaxed),
             malformed_from_server: self.malformed_from_server.load(Relaxed),
+            presence_repeats: self.presence_repeats.load(Relaxed),
             relayed_kept: relay.as_ref().map_or(0, |h| h.len()),
             relay_us_p50: relay.as_ref().map_or(0, |h| h.value_at_quantile(0.5)),
             relay_us_p99: relay.as_ref().map_or(0, |h| h.value_at_quantile(0.99)),
