@@ -102,8 +102,12 @@ impl EventView {
     /// notes) and compared with an empty batch. `each(tick, matched)` hears every tick made final,
     /// oldest first, `matched` being whether the view equalled the server's record (`false` for a
     /// tick the link was lost before: take the batch).
-    /// An earlier tick that still held events is put in doubt instead (see the module notes).
+    /// An earlier tick that still held events is put in doubt instead (see the module notes); the
+    /// batch of a tick in doubt (the stream's late copy) makes it final alone.
     pub fn confirm(&mut self, b: &EventBatch, mut each: impl FnMut(Tick, bool)) {
+        if self.recovered(b, &mut each) {
+            return;
+        }
         while let Some(entry) = self.ticks.first_entry().filter(|e| *e.key() < b.tick) {
             let (tick, mine) = entry.remove_entry();
             self.implied += 1;

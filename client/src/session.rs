@@ -39,7 +39,7 @@ use impact_protocol::{
     FullFrameRequest, InputBatch, RayResult, RejectReason, SceneDescription, ServerMessage, Tick, TimePing, Welcome,
     WorldClosed,
 };
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::time::{Duration, Instant};
 
 /// Round trips measured before play: five, as a few NTP polls pick their best from eight.
@@ -867,7 +867,9 @@ impl Session {
                 let (news, dropped) = (&mut self.news, &mut self.stats.event_news_dropped);
                 self.events
                     .confirm(&b, |tick, matched| push_news(news, dropped, EventNews::Confirmed { tick, matched }));
-                for t in self.events.doubtful() {
+                let doubtful: BTreeSet<Tick> = self.events.doubtful().collect();
+                self.recovery.retain(|t, _| doubtful.contains(t));
+                for t in doubtful {
                     self.recovery.entry(t).or_insert((now, false));
                 }
             }

@@ -1703,6 +1703,7 @@ function decodeMsgpack(bytes) {
 
 // src/events.ts
 var MAX_TICKS = 1024;
+var MAX_DOUBTFUL = 64;
 var key = (e) => `${e.tick}/${e.a}/${e.b}/${e.phase}`;
 function same(a, b) {
   const close = (x, y) => x.every((p, i) => Math.abs(p - (y[i] ?? NaN)) <= 1e-6);
@@ -1722,7 +1723,10 @@ var EventView = class {
   /** Ticks made final by a later tick's confirmation, with no batch of their own (also counted in
    * matched, mismatched or unverified). */
   implied = 0;
+  /** Ticks in doubt that the batch the server kept made final. */
+  recovered = 0;
   lostBeforeTick = null;
+  doubt = /* @__PURE__ */ new Map();
   tick(tick) {
     let t = this.ticks.get(tick);
     if (!t) {
@@ -1749,16 +1753,37 @@ var EventView = class {
   lostBefore(tick) {
     this.lostBeforeTick = Math.max(this.lostBeforeTick ?? tick, tick);
   }
-  /** Makes a confirmed tick final, after every earlier tick still held (compared with no events):
-   * each tick made final, oldest first, with whether the view equalled the server's record. */
+  /** Makes a confirmed tick final, after every earlier tick still held (compared with no events,
+   * or put in doubt if it held events): each tick made final, oldest first, with whether the view
+   * equalled the server's record. The batch of a tick in doubt makes it final alone. */
   confirm(b) {
+    const doubted = this.doubt.get(b.tick);
+    if (doubted) {
+      this.doubt.delete(b.tick);
+      this.recovered++;
+      return [{ tick: b.tick, matched: this.compare(b.tick, doubted, b.events) }];
+    }
     const finals = [];
     for (const tick of [...this.ticks.keys()].filter((t) => t < b.tick).sort((x, y) => x - y)) {
       this.implied++;
-      finals.push({ tick, matched: this.compare(tick, this.take(tick), []) });
+      const mine = this.take(tick);
+      const verified = this.lostBeforeTick === null || tick >= this.lostBeforeTick;
+      if (verified && mine.size > 0 && this.doubt.size < MAX_DOUBTFUL) this.doubt.set(tick, mine);
+      else finals.push({ tick, matched: this.compare(tick, mine, []) });
     }
     finals.push({ tick: b.tick, matched: this.compare(b.tick, this.take(b.tick), b.events) });
     return finals;
+  }
+  /** The ticks in doubt, oldest first. */
+  doubtful() {
+    return [...this.doubt.keys()].sort((x, y) => x - y);
+  }
+  /** Gives up on a tick in doubt: final with no events for this client. */
+  giveUp(tick) {
+    const mine = this.doubt.get(tick);
+    if (!mine) return [];
+    this.doubt.delete(tick);
+    return [{ tick, matched: this.compare(tick, mine, []) }];
   }
   take(tick) {
     const mine = this.ticks.get(tick) ?? /* @__PURE__ */ new Map();
@@ -2091,6 +2116,7 @@ var Connection = class _Connection {
     }
     if (!this.open) return;
     for (let m = session.pollTransmit(now); m; m = session.pollTransmit(now)) this.sendRaw(encodeClient(m));
+    for (let t = session.pollRecovery(); t !== null; t = session.pollRecovery()) this.sendRaw(encodeRequest({ type: "confirmed", tick: t }));
   }
   /** Asks the gateway for the world's scene (answered by a `scene` message). */
   askScene() {
@@ -2343,6 +2369,7 @@ var FULL_FRAME_EVERY_MS = 250;
 var MAX_OUTGOING = 256;
 var MAX_ANSWERS = 1024;
 var MAX_NEWS = 4096;
+var RECOVERY_WAIT_MS = 2e3;
 var MAX_RAY_RESULTS = 256;
 var MAX_INPUTS_PER_MESSAGE = 4;
 var MAX_ACTIONS_PER_INPUT = 16;
@@ -2396,6 +2423,8 @@ var Session = class {
   lostCheck = null;
   /** The newest tick the server named, and when: run on at the full rate for `linkRestored`. */
   newestNamed = null;
+  /** The event view's ticks in doubt: since when, and whether the transport was given it. */
+  recovery = /* @__PURE__ */ new Map();
   /** The own avatar: the last state streamed, and the velocities set since, by tick. */
   avatarState = null;
   velocities = [];
@@ -2473,9 +2502,13 @@ var Session = class {
         this.events.correct(msg);
         this.pushNews({ kind: "corrected", batch: msg });
         return;
-      case "confirmed":
+      case "confirmed": {
         for (const f2 of this.events.confirm(msg)) this.pushNews({ kind: "confirmed", ...f2 });
+        const doubtful = this.events.doubtful();
+        for (const t of this.recovery.keys()) if (!doubtful.includes(t)) this.recovery.delete(t);
+        for (const t of doubtful) if (!this.recovery.has(t)) this.recovery.set(t, { sinceMs: nowMs, asked: false });
         return;
+      }
       case "ray_result":
         if (msg.client !== me) return;
         this.stats.rayResults++;
@@ -2673,8 +2706,26 @@ var Session = class {
     }
     this.outgoing.push(m);
   }
+  /** A tick whose own confirmed batch was missed (a later one came while the view held events of
+   * it): the transport asks for the batch the server kept (the gateway's `confirmed` request),
+   * which comes as a `confirmed` message. Each tick is given once; one that did not come within
+   * RECOVERY_WAIT_MS is taken as having no events for this client. */
+  pollRecovery() {
+    for (const [t, r] of this.recovery) {
+      if (!r.asked) {
+        r.asked = true;
+        return t;
+      }
+    }
+    return null;
+  }
   /** The next message to send at `nowMs`: call until null each frame. */
   pollTransmit(nowMs) {
+    for (const [t, r] of [...this.recovery]) {
+      if (nowMs - r.sinceMs < RECOVERY_WAIT_MS) continue;
+      this.recovery.delete(t);
+      for (const f2 of this.events.giveUp(t)) this.pushNews({ kind: "confirmed", ...f2 });
+    }
     const c = this.lostCheck;
     if (c && nowMs >= c.dueMs) {
       this.lostCheck = null;

@@ -205,6 +205,15 @@ async fn inbound(
                 tokio::spawn(async move { mailbox.deliver(Kind::Kept, gw.relay.scene(&world).await) });
                 Ok(())
             }
+            Ok(Request::Confirmed { tick }) => {
+                let (gw, p, mailbox) = (gw.clone(), player.clone(), mailbox.clone());
+                tokio::spawn(async move {
+                    for bytes in gw.relay.confirmed(&p.world, p.client, tick).await {
+                        mailbox.deliver(Kind::Kept, bytes);
+                    }
+                });
+                Ok(())
+            }
             Ok(Request::Hello(_)) => Err((Close::Malformed, "a second hello".into())),
             Err(_) => Err((Close::Malformed, not_client.to_string())),
         },

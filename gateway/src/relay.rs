@@ -11,7 +11,7 @@ use crate::auth::Player;
 use crate::outbox::{Kind, Mailbox};
 use impact_client::transport::epoch_of;
 use impact_protocol::limits::MAX_SERVER_MESSAGE_BYTES;
-use impact_protocol::{keys, Encoding, ServerMessage, WorldId};
+use impact_protocol::{keys, ClientId, Encoding, ServerMessage, WorldId};
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, Mutex};
@@ -208,6 +208,26 @@ impl Relay {
             session: self.session.clone(),
             presence,
         })
+    }
+
+    /// The confirmed batch of `tick` for `client` (`query/confirmed`), MessagePack, if the
+    /// world's server still keeps it.
+    pub async fn confirmed(&self, world: &WorldId, client: ClientId, tick: u32) -> Vec<Vec<u8>> {
+        let selector = format!("{}?from={tick};to={tick};client={}", keys::QUERY_CONFIRMED.key(world, None), client.0);
+        let asked = self
+            .session
+            .get(selector)
+            .consolidation(zenoh::query::ConsolidationMode::None)
+            .timeout(impact_client::transport::RECOVERY_QUERY_TIMEOUT)
+            .await;
+        let Ok(replies) = asked else { return Vec::new() };
+        let mut out = Vec::new();
+        while let Ok(reply) = replies.recv_async().await {
+            if let Some(bytes) = reply.result().ok().and_then(as_msgpack) {
+                out.push(bytes);
+            }
+        }
+        out
     }
 
     /// The world's scene (`query/scene`) as the server answered it, MessagePack; a

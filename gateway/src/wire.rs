@@ -44,6 +44,13 @@ pub enum Request {
     /// The world's rules and static geometry (`query/scene`), answered by the server's `scene`
     /// message (or a `query_error`).
     Scene,
+    /// The confirmed batch of `tick` the player's stream carries, asked again after it was
+    /// missed (`query/confirmed` with the player's client id): answered by that `confirmed`
+    /// message if the server still keeps the tick, by nothing otherwise.
+    Confirmed {
+        /// The tick.
+        tick: u32,
+    },
 }
 
 /// Gateway to browser, besides the server's messages.

@@ -187,6 +187,17 @@ fn a_browser_player_plays_through_the_gateway() {
     assert!(alice.until(WAIT, |m| matches!(m, ServerMessage::State(_)).then_some(())).is_some(), "state frames come");
     alice.send(&json!({"type": "scene"}));
     assert!(alice.until(WAIT, |m| matches!(m, ServerMessage::Scene(_)).then_some(())).is_some(), "the scene comes");
+    // A confirmed batch asked for again: the tick before alice's avatar was, so empty, which her
+    // own stream never carries (it only has batches with her events).
+    let before = tick.0 - 1;
+    // Confirmed once it left the window (a quarter second).
+    std::thread::sleep(Duration::from_millis(500));
+    alice.send(&json!({"type": "confirmed", "tick": before}));
+    let again = alice.until(WAIT, |m| match m {
+        ServerMessage::Confirmed(b) if b.tick.0 == before => Some(b.events.len()),
+        _ => None,
+    });
+    assert_eq!(again, Some(0), "the kept batch of tick {before}, for alice");
     // A token does as well as a password.
     let token = Secret::new(SECRET).unwrap().issue(&Grant {
         client: ClientId(2),

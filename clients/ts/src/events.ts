@@ -4,12 +4,20 @@
 // batch and the tick leaves the view, with every earlier tick still held: confirmations come in
 // tick order, and a client's own stream carries a tick's batch only when one of its confirmed
 // events involves the client, so an earlier tick with no batch of its own is final with no events
-// for it. Bounded: at most MAX_TICKS ticks held.
+// for it. A tick made final that way while its view still held events is in doubt (its own batch
+// may have been lost on the way): held apart until the batch the server kept comes (asked for
+// through the gateway, or the stream's late copy) or the session gives up on it. Bounded: at most
+// MAX_TICKS ticks held, MAX_DOUBTFUL in doubt.
 
 import type { CollisionEvent, CorrectionBatch, EventBatch } from "./messages.js";
 
 /** The most ticks held (about 16 s at 64 Hz). */
 export const MAX_TICKS = 1024;
+
+/** The most ticks in doubt at once; past it a tick is compared at once, with no events. */
+export const MAX_DOUBTFUL = 64;
+
+type Final = { tick: number; matched: boolean };
 
 const key = (e: CollisionEvent): string => `${e.tick}/${e.a}/${e.b}/${e.phase}`;
 
@@ -32,7 +40,10 @@ export class EventView {
   /** Ticks made final by a later tick's confirmation, with no batch of their own (also counted in
    * matched, mismatched or unverified). */
   implied = 0;
+  /** Ticks in doubt that the batch the server kept made final. */
+  recovered = 0;
   private lostBeforeTick: number | null = null;
+  private readonly doubt = new Map<number, Map<string, CollisionEvent>>();
 
   private tick(tick: number): Map<string, CollisionEvent> {
     let t = this.ticks.get(tick);
@@ -64,16 +75,39 @@ export class EventView {
     this.lostBeforeTick = Math.max(this.lostBeforeTick ?? tick, tick);
   }
 
-  /** Makes a confirmed tick final, after every earlier tick still held (compared with no events):
-   * each tick made final, oldest first, with whether the view equalled the server's record. */
-  confirm(b: EventBatch): Array<{ tick: number; matched: boolean }> {
-    const finals: Array<{ tick: number; matched: boolean }> = [];
+  /** Makes a confirmed tick final, after every earlier tick still held (compared with no events,
+   * or put in doubt if it held events): each tick made final, oldest first, with whether the view
+   * equalled the server's record. The batch of a tick in doubt makes it final alone. */
+  confirm(b: EventBatch): Final[] {
+    const doubted = this.doubt.get(b.tick);
+    if (doubted) {
+      this.doubt.delete(b.tick);
+      this.recovered++;
+      return [{ tick: b.tick, matched: this.compare(b.tick, doubted, b.events) }];
+    }
+    const finals: Final[] = [];
     for (const tick of [...this.ticks.keys()].filter((t) => t < b.tick).sort((x, y) => x - y)) {
       this.implied++;
-      finals.push({ tick, matched: this.compare(tick, this.take(tick), []) });
+      const mine = this.take(tick);
+      const verified = this.lostBeforeTick === null || tick >= this.lostBeforeTick;
+      if (verified && mine.size > 0 && this.doubt.size < MAX_DOUBTFUL) this.doubt.set(tick, mine);
+      else finals.push({ tick, matched: this.compare(tick, mine, []) });
     }
     finals.push({ tick: b.tick, matched: this.compare(b.tick, this.take(b.tick), b.events) });
     return finals;
+  }
+
+  /** The ticks in doubt, oldest first. */
+  doubtful(): number[] {
+    return [...this.doubt.keys()].sort((x, y) => x - y);
+  }
+
+  /** Gives up on a tick in doubt: final with no events for this client. */
+  giveUp(tick: number): Final[] {
+    const mine = this.doubt.get(tick);
+    if (!mine) return [];
+    this.doubt.delete(tick);
+    return [{ tick, matched: this.compare(tick, mine, []) }];
   }
 
   private take(tick: number): Map<string, CollisionEvent> {

@@ -177,6 +177,7 @@ export class Connection {
     }
     if (!this.open) return;
     for (let m = session.pollTransmit(now); m; m = session.pollTransmit(now)) this.sendRaw(encodeClient(m));
+    for (let t = session.pollRecovery(); t !== null; t = session.pollRecovery()) this.sendRaw(encodeRequest({ type: "confirmed", tick: t }));
   }
 
   /** Asks the gateway for the world's scene (answered by a `scene` message). */
@@ -197,7 +198,7 @@ export class Connection {
   }
 }
 
-/** The gateway's own requests (hello, scene): plain MessagePack maps of strings, integers and
+/** The gateway's own requests (hello, scene, confirmed): plain MessagePack maps of strings, integers and
  * booleans, which any encoder writes as the gateway reads them. */
 function encodeRequest(v: Record<string, unknown>): Uint8Array {
   return msgpackEncode(v);

@@ -36,6 +36,8 @@ export const FULL_FRAME_EVERY_MS = 250;
 export const MAX_OUTGOING = 256;
 export const MAX_ANSWERS = 1024;
 export const MAX_NEWS = 4096;
+/** How long a tick in doubt waits for the batch the server kept before it is taken as empty. */
+export const RECOVERY_WAIT_MS = 2000;
 export const MAX_RAY_RESULTS = 256;
 /** Inputs per message at most (the protocol's limit), and actions per input. */
 export const MAX_INPUTS_PER_MESSAGE = 4;
@@ -121,6 +123,8 @@ export class Session {
   private lostCheck: { welcomedMs: number; dueMs: number; nextSeq: number } | null = null;
   /** The newest tick the server named, and when: run on at the full rate for `linkRestored`. */
   private newestNamed: { tick: number; atMs: number } | null = null;
+  /** The event view's ticks in doubt: since when, and whether the transport was given it. */
+  private recovery = new Map<number, { sinceMs: number; asked: boolean }>();
   /** The own avatar: the last state streamed, and the velocities set since, by tick. */
   private avatarState: { tick: number; position: Vec3; velocity: Vec3 } | null = null;
   private velocities: { tick: number; velocity: Vec3 }[] = [];
@@ -204,9 +208,13 @@ export class Session {
         this.events.correct(msg);
         this.pushNews({ kind: "corrected", batch: msg });
         return;
-      case "confirmed":
+      case "confirmed": {
         for (const f of this.events.confirm(msg)) this.pushNews({ kind: "confirmed", ...f });
+        const doubtful = this.events.doubtful();
+        for (const t of this.recovery.keys()) if (!doubtful.includes(t)) this.recovery.delete(t);
+        for (const t of doubtful) if (!this.recovery.has(t)) this.recovery.set(t, { sinceMs: nowMs, asked: false });
         return;
+      }
       case "ray_result":
         if (msg.client !== me) return;
         this.stats.rayResults++;
@@ -423,8 +431,27 @@ export class Session {
     this.outgoing.push(m);
   }
 
+  /** A tick whose own confirmed batch was missed (a later one came while the view held events of
+   * it): the transport asks for the batch the server kept (the gateway's `confirmed` request),
+   * which comes as a `confirmed` message. Each tick is given once; one that did not come within
+   * RECOVERY_WAIT_MS is taken as having no events for this client. */
+  pollRecovery(): number | null {
+    for (const [t, r] of this.recovery) {
+      if (!r.asked) {
+        r.asked = true;
+        return t;
+      }
+    }
+    return null;
+  }
+
   /** The next message to send at `nowMs`: call until null each frame. */
   pollTransmit(nowMs: number): ClientMessage | null {
+    for (const [t, r] of [...this.recovery]) {
+      if (nowMs - r.sinceMs < RECOVERY_WAIT_MS) continue;
+      this.recovery.delete(t);
+      for (const f of this.events.giveUp(t)) this.pushNews({ kind: "confirmed", ...f });
+    }
     const c = this.lostCheck;
     if (c && nowMs >= c.dueMs) {
       this.lostCheck = null;

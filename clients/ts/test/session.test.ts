@@ -5,7 +5,7 @@
 
 import { test } from "node:test";
 import assert from "node:assert/strict";
-import { Session, sessionConfig, SYNC_PROBES } from "../src/session.js";
+import { RECOVERY_WAIT_MS, Session, sessionConfig, SYNC_PROBES } from "../src/session.js";
 import { MAX_TICKS } from "../src/events.js";
 import type { CollisionEvent, ServerMessage, StateFrame } from "../src/messages.js";
 
@@ -142,8 +142,12 @@ test("a confirmation makes every earlier tick final, so a long match holds nothi
   s.takeEventNews();
   // Tick 103's only event was retracted, so no batch of its own comes; 104's retraction was lost.
   s.receive({ type: "confirmed", tick: 105, revision: 0, events: [event(105)] }, 310);
+  // 104 still held an event: in doubt, asked for once, then given up on.
   const finals = s.takeEventNews().map((n) => n.kind === "confirmed" && [n.tick, n.matched]);
-  assert.deepEqual(finals, [[103, true], [104, false], [105, true]]);
+  assert.deepEqual(finals, [[103, true], [105, true]]);
+  assert.deepEqual([s.pollRecovery(), s.pollRecovery()], [104, null]);
+  while (s.pollTransmit(310 + RECOVERY_WAIT_MS)) {}
+  assert.deepEqual(s.takeEventNews().map((n) => n.kind === "confirmed" && [n.tick, n.matched]), [[104, false]]);
   assert.deepEqual([s.events.held, s.events.implied, s.events.newest()], [1, 2, 107]);
   for (let t = 108; t < 108 + 3 * MAX_TICKS; t++) {
     s.receive({ type: "events", tick: t, revision: 0, events: [event(t)] }, 400);
@@ -152,7 +156,21 @@ test("a confirmation makes every earlier tick final, so a long match holds nothi
     s.takeEventNews();
   }
   assert.ok(s.events.held <= 16, `${s.events.held} ticks held`);
-  assert.deepEqual([s.events.forgotten, s.events.mismatched], [0, 2], "tick 107's event was never confirmed");
+  assert.deepEqual(s.events.doubtful(), [107], "tick 107's event was never confirmed");
+  while (s.pollTransmit(400 + RECOVERY_WAIT_MS)) {}
+  assert.deepEqual([s.events.forgotten, s.events.mismatched, s.events.doubtful().length], [0, 2, 0]);
+});
+
+test("a missed confirmed batch is asked for, and its late copy makes the tick final", () => {
+  const s = playing();
+  s.receive({ type: "events", tick: 104, revision: 0, events: [event(104)] }, 300);
+  s.receive({ type: "confirmed", tick: 106, revision: 0, events: [] }, 310);
+  assert.deepEqual(s.takeEventNews().filter((n) => n.kind === "confirmed").map((n) => n.kind === "confirmed" && n.tick), [106]);
+  assert.equal(s.pollRecovery(), 104);
+  s.receive({ type: "confirmed", tick: 104, revision: 0, events: [event(104)] }, 320);
+  assert.deepEqual(s.takeEventNews().map((n) => n.kind === "confirmed" && [n.tick, n.matched]), [[104, true]]);
+  while (s.pollTransmit(310 + RECOVERY_WAIT_MS)) {}
+  assert.deepEqual([s.events.recovered, s.events.matched, s.events.mismatched, s.takeEventNews().length], [1, 2, 0, 0]);
 });
 
 const frame = (n: number, tick: number, full: boolean, x: number, vx: number, avatar?: [number, number]): StateFrame => ({
