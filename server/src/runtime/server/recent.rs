@@ -5,7 +5,9 @@
 //!
 //! Each event is kept with the clients that owned its bodies when it was confirmed: a client's
 //! stream carries the events of the bodies it owns, and the answer for one client must be that
-//! stream's batch even once the bodies are gone.
+//! stream's batch even once the bodies are gone. A standby takes the owners from its replica
+//! once it has stepped the tick, a window earlier than its primary looked: for a body removed in
+//! between, its answer for the owner may hold an event the stream did not carry.
 
 use impact_protocol::{ClientId, CollisionEvent, EventBatch, Tick};
 use std::collections::BTreeMap;
