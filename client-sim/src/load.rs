@@ -1527,7 +1527,8 @@ impl Run<'_> {
         r.views_mismatched = self.sessions().map(|s| s.events().mismatched).sum();
         r.views_unverified = self.sessions().map(|s| s.events().unverified).sum();
         for (c, back) in clients.iter().flat_map(|c| c.returns.iter().map(move |b| (c, b))) {
-            let in_grace = back.away + Duration::from_millis(250) < GRACE;
+            // A client that left before its first welcome reached it knew no avatar to keep.
+            let in_grace = back.away + Duration::from_millis(250) < GRACE && back.avatar.is_some();
             r.returns += 1;
             r.returns_welcomed += u64::from(back.welcomed.is_some());
             r.returns_in_grace += u64::from(in_grace);

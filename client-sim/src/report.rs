@@ -74,7 +74,8 @@ pub struct Report {
     pub returns: u64,
     /// Of them, welcomed again.
     pub returns_welcomed: u64,
-    /// Of them, back well within the server's grace period (a quarter second inside it).
+    /// Of them, back well within the server's grace period (a quarter second inside it), having
+    /// known an avatar (been welcomed) before they left.
     pub returns_in_grace: u64,
     /// Of those, welcomed to the avatar they had.
     pub returns_kept_avatar: u64,

@@ -28,8 +28,11 @@ use std::process::Command;
 use std::time::Duration;
 use zenoh::Wait;
 
-/// The deployment's seeds CI runs: router restarts in 1, 2, 4, 5, 7, 8, failovers in 2, 4, 6, 8.
-const DEPLOY_SEEDS: std::ops::RangeInclusive<u64> = 1..=8;
+/// The deployment's seeds CI runs: router restarts in 1, 2, 4, 5, 7, 8, failovers in 2, 4, 6, 8;
+/// and the long run's first two failures: 18 (clients whose grace ran out just before the
+/// primary was killed come back to the standby) and 22 (clients that leave before their first
+/// welcome reached them).
+const DEPLOY_SEEDS: [u64; 10] = [1, 2, 3, 4, 5, 6, 7, 8, 18, 22];
 
 /// What the deployment's processes do to themselves in one seed: the router restarted (when
 /// after the start, for how long) and the primary killed (when), each drawn from the seed.
@@ -317,6 +320,6 @@ fn deployment_violations(r: &impact_client_sim::report::Report, wrong: &mut Vec<
 
 #[test]
 fn a_deployment_keeps_the_invariants() {
-    let seeds = seeds("IMPACT_DEPLOY_SEEDS", DEPLOY_SEEDS);
+    let seeds = seeds("IMPACT_DEPLOY_SEEDS", DEPLOY_SEEDS.into_iter());
     run_seeds("deployment", "IMPACT_DEPLOY_SEEDS", seeds, deployment_run, "deploy_faults");
 }

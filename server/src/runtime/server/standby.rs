@@ -136,6 +136,17 @@ impl Follower {
     }
 }
 
+/// The avatars a tick's server actions remove.
+fn removed_by(system: &[SystemAction]) -> Vec<impact_protocol::EntityId> {
+    system
+        .iter()
+        .filter_map(|a| match a {
+            SystemAction::Remove { entity } => Some(*entity),
+            SystemAction::SpawnAvatar { .. } => None,
+        })
+        .collect()
+}
+
 /// What the standby knows of the ticks its primary has not confirmed.
 #[derive(Default)]
 struct Unconfirmed {
@@ -403,14 +414,7 @@ impl TickLoop {
                 return false;
             }
         };
-        let removed: Vec<_> = t
-            .system
-            .iter()
-            .filter_map(|a| match a {
-                SystemAction::Remove { entity } => Some(*entity),
-                SystemAction::SpawnAvatar { .. } => None,
-            })
-            .collect();
+        let removed = removed_by(&t.system);
         if let Err(e) = self.session.follow(t.tick, t.system, t.inputs) {
             eprintln!("  standby {}: {e}", self.world);
             *synced = false;
@@ -479,10 +483,14 @@ impl TickLoop {
         for k in from.0..=to.0 {
             let (system, inputs) = pending.admitted.remove(&k).unwrap_or_default();
             self.summary.reapplied_inputs += inputs.len() as u64;
+            // The primary's own removals (a client's grace ran out) leave the client table as
+            // following the log does: a client back later joins anew, not to a removed avatar.
+            let removed = removed_by(&system);
             if let Err(e) = self.session.follow(Tick(k), system, inputs) {
                 eprintln!("  standby {}: {e}", self.world);
             }
             let mut adv = self.session.advance();
+            self.track_avatars(&adv, &removed);
             self.summary.ticks += 1;
             self.summary.caught_up_ticks += 1;
             if let Some((events, revision)) = pending.published.remove(&k) {
