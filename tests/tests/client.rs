@@ -164,35 +164,13 @@ fn no_server_and_another_protocol_version_are_clear_errors() {
 
 /// A welcome that does not come (lost on its way, or the server never heard the presence) is
 /// asked for again: the joining client withdraws and declares its presence after
-/// `WELCOME_WAIT`, doubling, and stops once welcomed. The "server" here is a bare Zenoh peer that
-/// answers only the second declaration.
+/// `WELCOME_WAIT`, doubling, and stops once welcomed. The "server" is a bare Zenoh peer
+/// (`common::SilentServer`) that answers none of the declarations until told.
 #[test]
 fn a_welcome_that_does_not_come_is_asked_for_again() {
     use impact_client::transport::WELCOME_WAIT;
-    use impact_protocol::{keys, Encoding, ServerMessage, Tick, Welcome};
-    use std::sync::atomic::{AtomicU32, Ordering::Relaxed};
-    use std::sync::Arc;
-    let port = free_port();
-    let ep = format!("tcp/127.0.0.1:{port}");
-    let mut c = zenoh::Config::default();
-    c.insert_json5("scouting/multicast/enabled", "false").unwrap();
-    c.insert_json5("listen/endpoints", &format!("[\"{ep}\"]")).unwrap();
-    let host = zenoh::open(c).wait().unwrap();
-    let world = WorldId::new("arena").unwrap();
-    let _server = host.liveliness().declare_token(keys::SERVER.key(&world, None)).wait().unwrap();
-    let joins = Arc::new(AtomicU32::new(0));
-    let j = joins.clone();
-    let _presence = host
-        .liveliness()
-        .declare_subscriber(keys::PRESENCE.any_client(&world))
-        .callback(move |s| {
-            if s.kind() == zenoh::sample::SampleKind::Put {
-                j.fetch_add(1, Relaxed);
-            }
-        })
-        .wait()
-        .unwrap();
-    let opts = ConnectOptions { scene: false, state: false, ..options(&ep, 7) };
+    let host = common::SilentServer::start();
+    let opts = ConnectOptions { scene: false, state: false, ..options(&host.endpoint, 7) };
     let conn = Connection::open(&opts).expect("connects");
     let mut game = Session::new(SessionConfig::new(ClientId(7)));
     let pump_for = |game: &mut Session, d: Duration| {
@@ -204,29 +182,14 @@ fn a_welcome_that_does_not_come_is_asked_for_again() {
     };
     pump_for(&mut game, WELCOME_WAIT + Duration::from_millis(500));
     assert_eq!(game.status(), Status::Joining);
-    assert!(joins.load(Relaxed) >= 2, "the presence was declared {} times", joins.load(Relaxed));
-    assert_eq!(conn.presence_repeats(), u64::from(joins.load(Relaxed) - 1));
-    let welcome = ServerMessage::Welcome(Welcome {
-        client: ClientId(7),
-        avatar: None,
-        tick: Tick(100),
-        tick_hz: 60,
-        window_ticks: 16,
-        input_lead_ticks: 2,
-        max_rewind_ticks: 16,
-        next_seq: 0,
-        scene_hash: 0,
-    });
-    let bytes = impact_protocol::encode(&welcome, Encoding::MsgPack).unwrap();
-    host.put(keys::CLIENT_ACK.key(&world, Some(ClientId(7))), bytes)
-        .encoding(Encoding::MsgPack.zenoh_tag())
-        .wait()
-        .unwrap();
+    assert!(host.presences() >= 2, "the presence was declared {} times", host.presences());
+    assert_eq!(conn.presence_repeats(), host.presences() - 1);
+    host.welcome(ClientId(7));
     pump_for(&mut game, Duration::from_millis(300));
     assert_eq!(game.status(), Status::Syncing, "welcomed (its clock probes go unanswered here)");
-    let declared = joins.load(Relaxed);
+    let declared = host.presences();
     pump_for(&mut game, WELCOME_WAIT * 3);
-    assert_eq!(joins.load(Relaxed), declared, "a welcomed client declared its presence again");
+    assert_eq!(host.presences(), declared, "a welcomed client declared its presence again");
 }
 
 /// On a world whose avatars are characters, a client's velocity is refused with a typed reason

@@ -22,7 +22,6 @@ use std::net::{SocketAddr, TcpStream};
 use std::time::{Duration, Instant};
 use tungstenite::stream::MaybeTlsStream;
 use tungstenite::{Message, WebSocket};
-use zenoh::Wait;
 
 const GATEWAY: &str = "\n[[gateway]]\nname = \"gw\"\npassword = \"gw-secret\"\n";
 const SECRET: &[u8] = b"a shared secret of at least 32 bytes";
@@ -220,33 +219,14 @@ fn a_browser_player_plays_through_the_gateway() {
 
 /// A welcome that does not come (lost on its way, or a presence the server never heard) is asked
 /// for again: the gateway withdraws and declares its player's presence, as the Rust client's
-/// transport does, and stops once the welcome came. The "server" is a bare Zenoh peer that
-/// answers none of the declarations until told.
+/// transport does, and stops once the welcome came. The "server" is a bare Zenoh peer
+/// (`common::SilentServer`) that answers none of the declarations until told.
 #[test]
 fn the_gateway_asks_again_for_a_welcome_that_does_not_come() {
     use impact_client::transport::WELCOME_WAIT;
-    use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
-    use std::sync::Arc;
-    let ep = format!("tcp/127.0.0.1:{}", free_port());
-    let mut c = zenoh::Config::default();
-    c.insert_json5("scouting/multicast/enabled", "false").unwrap();
-    c.insert_json5("listen/endpoints", &format!("[\"{ep}\"]")).unwrap();
-    let host = zenoh::open(c).wait().unwrap();
-    let world = WorldId::new("arena").unwrap();
-    let _server = host.liveliness().declare_token(keys::SERVER.key(&world, None)).wait().unwrap();
-    let joins = Arc::new(AtomicU64::new(0));
-    let j = joins.clone();
-    let _presence = host
-        .liveliness()
-        .declare_subscriber(keys::PRESENCE.any_client(&world))
-        .callback(move |s| {
-            if s.kind() == zenoh::sample::SampleKind::Put {
-                j.fetch_add(1, Relaxed);
-            }
-        })
-        .wait()
-        .unwrap();
-    let session = open_session(std::slice::from_ref(&ep), None, None, Mode::Peer).expect("the gateway's session");
+    let host = common::SilentServer::start();
+    let session =
+        open_session(std::slice::from_ref(&host.endpoint), None, None, Mode::Peer).expect("the gateway's session");
     let config =
         Config { auth: Authenticator { users: Some(Users::parse(USERS).unwrap()), secret: None }, ..Config::default() };
     let gw = start(Gateway::new(config, session), "127.0.0.1:0", 2).expect("the gateway starts");
@@ -254,29 +234,14 @@ fn the_gateway_asks_again_for_a_welcome_that_does_not_come() {
     alice.send(&hello("alice", "alice-secret", 1));
     assert!(alice.ready(WAIT).is_some(), "ready");
     std::thread::sleep(WELCOME_WAIT + Duration::from_millis(700));
-    let declared = joins.load(Relaxed);
+    let declared = host.presences();
     assert!(declared >= 2, "the presence was declared {declared} times");
     assert_eq!(gw.gateway.counters.snapshot().presence_repeats, declared - 1);
-    let welcome = ServerMessage::Welcome(impact_protocol::Welcome {
-        client: ClientId(1),
-        avatar: None,
-        tick: Tick(100),
-        tick_hz: 64,
-        window_ticks: 16,
-        input_lead_ticks: 2,
-        max_rewind_ticks: 16,
-        next_seq: 0,
-        scene_hash: 0,
-    });
-    let bytes = impact_protocol::encode(&welcome, Encoding::MsgPack).unwrap();
-    host.put(keys::CLIENT_ACK.key(&world, Some(ClientId(1))), bytes)
-        .encoding(Encoding::MsgPack.zenoh_tag())
-        .wait()
-        .unwrap();
+    host.welcome(ClientId(1));
     assert!(alice.until(WAIT, |m| matches!(m, ServerMessage::Welcome(_)).then_some(())).is_some(), "welcomed");
-    let declared = joins.load(Relaxed);
+    let declared = host.presences();
     std::thread::sleep(WELCOME_WAIT * 3);
-    assert_eq!(joins.load(Relaxed), declared, "a welcomed player's presence was declared again");
+    assert_eq!(host.presences(), declared, "a welcomed player's presence was declared again");
     gw.stop().expect("the gateway stops");
 }
 

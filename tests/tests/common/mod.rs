@@ -154,3 +154,68 @@ pub fn answers(m: &ServerMessage, seq: u32) -> bool {
         _ => false,
     }
 }
+
+/// A "server" of the arena world that answers none of the declarations until told: a bare Zenoh
+/// peer listening on a free port, holding the server's liveliness token and counting the
+/// presences clients declare. For what a client does while its welcome does not come.
+pub struct SilentServer {
+    /// Where it listens.
+    pub endpoint: String,
+    world: WorldId,
+    host: zenoh::Session,
+    _token: zenoh::liveliness::LivelinessToken,
+    _presence: zenoh::pubsub::Subscriber<()>,
+    presences: std::sync::Arc<std::sync::atomic::AtomicU64>,
+}
+
+impl SilentServer {
+    pub fn start() -> Self {
+        use std::sync::atomic::Ordering::Relaxed;
+        let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+        let mut c = zenoh::Config::default();
+        c.insert_json5("scouting/multicast/enabled", "false").unwrap();
+        c.insert_json5("listen/endpoints", &format!("[\"{endpoint}\"]")).unwrap();
+        let host = zenoh::open(c).wait().expect("the silent server's session");
+        let world = WorldId::new("arena").unwrap();
+        let _token = host.liveliness().declare_token(keys::SERVER.key(&world, None)).wait().unwrap();
+        let presences = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+        let p = presences.clone();
+        let _presence = host
+            .liveliness()
+            .declare_subscriber(keys::PRESENCE.any_client(&world))
+            .callback(move |s| {
+                if s.kind() == zenoh::sample::SampleKind::Put {
+                    p.fetch_add(1, Relaxed);
+                }
+            })
+            .wait()
+            .unwrap();
+        SilentServer { endpoint, world, host, _token, _presence, presences }
+    }
+
+    /// How many times a client's presence was declared.
+    pub fn presences(&self) -> u64 {
+        self.presences.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// Welcomes `client` at last (no avatar, tick 100).
+    pub fn welcome(&self, client: ClientId) {
+        let welcome = ServerMessage::Welcome(impact_protocol::Welcome {
+            client,
+            avatar: None,
+            tick: impact_protocol::Tick(100),
+            tick_hz: 64,
+            window_ticks: 16,
+            input_lead_ticks: 2,
+            max_rewind_ticks: 16,
+            next_seq: 0,
+            scene_hash: 0,
+        });
+        let bytes = encode(&welcome, Encoding::MsgPack).unwrap();
+        self.host
+            .put(keys::CLIENT_ACK.key(&self.world, Some(client)), bytes)
+            .encoding(Encoding::MsgPack.zenoh_tag())
+            .wait()
+            .unwrap();
+    }
+}

@@ -70,13 +70,34 @@ pub(super) fn mine(
     owners: &[[Option<ClientId>; 2]],
     client: ClientId,
 ) -> Vec<CollisionEvent> {
-    let mut out: Vec<CollisionEvent> = Vec::new();
+    let mut out = Vec::new();
     for (e, o) in events.iter().zip(owners) {
-        if o.contains(&Some(client)) && out.last().is_none_or(|l| l.key() != e.key()) {
-            out.push(e.clone());
+        if o.contains(&Some(client)) {
+            push_once(&mut out, e);
         }
     }
     out
+}
+
+/// [`mine`] for every client owning a body of `events`, in one pass, by client.
+pub(super) fn by_owner(
+    events: &[CollisionEvent],
+    owners: &[[Option<ClientId>; 2]],
+) -> BTreeMap<ClientId, Vec<CollisionEvent>> {
+    let mut out: BTreeMap<ClientId, Vec<CollisionEvent>> = BTreeMap::new();
+    for (e, o) in events.iter().zip(owners) {
+        for c in o.iter().flatten() {
+            push_once(out.entry(*c).or_default(), e);
+        }
+    }
+    out
+}
+
+/// Appends `e` unless it is the event just appended (both bodies owned by the one client).
+fn push_once(out: &mut Vec<CollisionEvent>, e: &CollisionEvent) {
+    if out.last().is_none_or(|l| l.key() != e.key()) {
+        out.push(e.clone());
+    }
 }
 
 #[cfg(test)]
@@ -123,5 +144,21 @@ mod tests {
         assert_eq!((for1[0].events.len(), for1[1].events.clone()), (0, vec![event(1, 2)]));
         assert_eq!(r.batches(Tick(t), Tick(t), Some(ClientId(3)))[0].events, Vec::new());
         assert!(r.has(Tick(t)) && !r.has(Tick(9)));
+    }
+
+    /// The one pass gives each client what [`mine`] gives it: an event of two bodies of one
+    /// client once, an event of two clients' bodies to both, an unowned one to none.
+    #[test]
+    fn by_owner_is_mine_for_every_client() {
+        let (c1, c2) = (ClientId(1), ClientId(2));
+        let events = vec![event(1, 2), event(3, 4), event(5, 6), event(7, 8)];
+        let owners = vec![[Some(c1), Some(c1)], [Some(c1), Some(c2)], [None, None], [None, Some(c2)]];
+        let all = by_owner(&events, &owners);
+        assert_eq!(all.keys().copied().collect::<Vec<_>>(), vec![c1, c2]);
+        for c in [c1, c2] {
+            assert_eq!(all[&c], mine(&events, &owners, c));
+        }
+        assert_eq!(all[&c1], vec![event(1, 2), event(3, 4)]);
+        assert_eq!(all[&c2], vec![event(3, 4), event(7, 8)]);
     }
 }

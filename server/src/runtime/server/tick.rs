@@ -20,7 +20,7 @@ use impact_protocol::{
     keys, Admitted, ClientId, CollisionEvent, Encoding, EntityId, Epoch, EventBatch, InputAck, InputReject,
     LoggedInput, OwnerNotice, RejectReason, ServerMessage, Tick, TimePing, TimePong, Welcome, WorldClosed, WorldId,
 };
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender};
 use std::sync::Arc;
@@ -672,7 +672,8 @@ impl TickLoop {
             self.summary.events += adv.events.len() as u64;
             self.period_events += adv.events.len() as u64;
             let batch = EventBatch { tick: adv.tick, revision: 0, events: adv.events.clone() };
-            self.per_client(&batch.events, adv.tick, |events| {
+            let owners = self.owners(&batch.events, adv.tick);
+            self.per_client(&batch.events, &owners, |events| {
                 ServerMessage::Events(EventBatch { tick: batch.tick, revision: 0, events })
             });
             self.put(keys::EVENTS.key(&self.world, None), ServerMessage::Events(batch), enc);
@@ -681,7 +682,7 @@ impl TickLoop {
             self.summary.corrections += 1;
             let all: Vec<CollisionEvent> = c.retracted.iter().chain(&c.amended).chain(&c.added).cloned().collect();
             let cc = c.clone();
-            self.per_client(&all, c.tick, move |events| {
+            self.per_client(&all, &self.owners(&all, c.tick), move |events| {
                 let keep = |v: &[CollisionEvent]| {
                     v.iter().filter(|e| events.iter().any(|x| x.key() == e.key())).cloned().collect()
                 };
@@ -704,20 +705,23 @@ impl TickLoop {
             }
             self.put_log(keys::LOG.key(&self.world, None), ServerMessage::Log(entry));
         }
-        // Kept for `query/confirmed`: a tick its primary confirmed was kept as heard, and stays.
-        if let Some(c) = adv.confirmed.as_ref().filter(|c| !self.recent.has(c.tick)) {
-            let owners = self.owners(&c.events, c.tick);
-            self.recent.keep(c.clone(), owners);
-        }
-        if let Some(c) = adv.confirmed.as_ref().filter(|c| !self.earlier.confirmed(c.tick)) {
-            self.summary.confirmed_events += c.events.len() as u64;
-            if !c.events.is_empty() {
-                let cc = c.clone();
-                self.per_client(&c.events, c.tick, move |events| {
-                    ServerMessage::Confirmed(EventBatch { tick: cc.tick, revision: cc.revision, events })
-                });
+        if let Some(c) = adv.confirmed.take() {
+            // Kept for `query/confirmed`: a tick its primary confirmed was kept as heard, and
+            // stays; one the primary published was published then, and is not again.
+            let (keep, publish) = (!self.recent.has(c.tick), !self.earlier.confirmed(c.tick));
+            let owners = if keep || publish { self.owners(&c.events, c.tick) } else { Vec::new() };
+            if publish {
+                self.summary.confirmed_events += c.events.len() as u64;
+                if !c.events.is_empty() {
+                    self.per_client(&c.events, &owners, |events| {
+                        ServerMessage::Confirmed(EventBatch { tick: c.tick, revision: c.revision, events })
+                    });
+                }
+                self.put(keys::CONFIRMED.key(&self.world, None), ServerMessage::Confirmed(c.clone()), enc);
             }
-            self.put(keys::CONFIRMED.key(&self.world, None), ServerMessage::Confirmed(c.clone()), enc);
+            if keep {
+                self.recent.keep(c, owners);
+            }
         }
         for r in &adv.rays {
             let e = self.clients.get(&r.client).map_or(enc, |c| c.encoding);
@@ -795,14 +799,17 @@ impl TickLoop {
         }
     }
 
-    /// Publishes, for each client owning an entity in `events`, the batch `make` builds from the
-    /// events that concern it.
-    fn per_client(&self, events: &[CollisionEvent], tick: Tick, make: impl Fn(Vec<CollisionEvent>) -> ServerMessage) {
-        let owners = self.owners(events, tick);
-        let clients: BTreeSet<ClientId> = owners.iter().flatten().flatten().copied().collect();
-        for client in clients {
+    /// Publishes, for each client owning an entity in `events` (`owners` per event, from
+    /// [`Self::owners`]), the batch `make` builds from the events that concern it.
+    fn per_client(
+        &self,
+        events: &[CollisionEvent],
+        owners: &[[Option<ClientId>; 2]],
+        make: impl Fn(Vec<CollisionEvent>) -> ServerMessage,
+    ) {
+        for (client, mine) in super::recent::by_owner(events, owners) {
             let e = self.clients.get(&client).map_or(self.opts.encoding, |c| c.encoding);
-            self.put(self.events_key(client), make(super::recent::mine(events, &owners, client)), e);
+            self.put(self.events_key(client), make(mine), e);
         }
     }
 
