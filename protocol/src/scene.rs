@@ -57,6 +57,10 @@ pub struct WorldRules {
     pub sleep_speed_mps: f64,
     /// Still ticks before an island sleeps (0: never).
     pub sleep_after_ticks: u32,
+    /// Whether islands also sleep in parts, from the bottom up, under gravity (absent: `false`,
+    /// as before it existed).
+    #[serde(default)]
+    pub partial_sleep: bool,
     /// Most bodies the world holds.
     pub max_bodies: u32,
     /// Rollback window, ticks.

@@ -31,7 +31,7 @@ fn explain_says_where_every_world_value_came_from() {
     assert!(slop.contains("0.003") && slop.contains("default: 1.25 ticks of free fall"), "{text}");
     assert!(line(&text, "sleep_after_s").contains("default: "), "{text}");
     let settings = text.lines().filter(|l| !l.trim_start().starts_with("warning[")).count();
-    assert_eq!(settings, 16, "a heading and the 15 [world] keys:\n{text}");
+    assert_eq!(settings, 17, "a heading and the 16 [world] keys:\n{text}");
     let flagged = explain(&["--tick-hz", "128"]);
     assert!(line(&flagged, "tick_hz").contains("128") && line(&flagged, "tick_hz").contains("--tick-hz"), "{flagged}");
     // The slop follows the flag's tick rate: 1.25 * 9.81 / 128^2 = 0.75 mm.

@@ -81,6 +81,8 @@ pub struct WorldDef {
     pub sleep_speed_mps: Option<f64>,
     /// An island still for this long falls asleep, s (0 disables sleeping).
     pub sleep_after_s: Option<f64>,
+    /// Whether islands also sleep in parts under gravity.
+    pub partial_sleep: Option<bool>,
 }
 
 impl WorldDef {

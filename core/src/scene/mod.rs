@@ -596,6 +596,7 @@ fn sim_config(w: &WorldKeys, classes: Classes, bisect: BisectConfig, projectile_
         } else {
             ((w.sleep_after_s * f64::from(w.tick_hz)).ceil() as u32).max(1)
         },
+        partial_sleep: w.partial_sleep,
         max_bodies: w.max_bodies,
         window_ticks,
         input_lead_ticks: w.input_lead_ticks,

@@ -83,6 +83,10 @@ pub struct WorldKeys {
     pub sleep_speed_mps: f64,
     /// An island still for this long falls asleep, s (0: never).
     pub sleep_after_s: f64,
+    /// Under gravity, islands also sleep in parts, from the bottom up. Absent from recordings
+    /// made before the key existed: `false`, how those ran.
+    #[serde(default)]
+    pub partial_sleep: bool,
 }
 
 impl WorldKeys {
@@ -104,6 +108,7 @@ impl WorldKeys {
         w.friction = Some(self.friction);
         w.sleep_speed_mps = Some(self.sleep_speed_mps);
         w.sleep_after_s = Some(self.sleep_after_s);
+        w.partial_sleep = Some(self.partial_sleep);
     }
 
     /// The keys whose values differ from `other`'s, as `key: this vs other` (empty: the same).
@@ -125,14 +130,15 @@ fn resolved_list(keys: &WorldKeys) -> Vec<Setting> {
 }
 
 /// The defaults of every build before they followed the scene (recordings of format 1 ran with
-/// them): elastic, frictionless, 0.1 mm slop, whatever the gravity. Fills the keys `w` leaves
-/// out.
+/// them): elastic, frictionless, 0.1 mm slop, islands asleep only whole, whatever the gravity.
+/// Fills the keys `w` leaves out.
 pub fn fixed_defaults(w: &mut WorldDef) {
     w.restitution.get_or_insert(1.0);
     w.contact_slop_m.get_or_insert(1.0e-4);
     w.friction.get_or_insert(0.0);
     w.sleep_speed_mps.get_or_insert(0.05);
     w.bounce_threshold_mps.get_or_insert(0.5);
+    w.partial_sleep.get_or_insert(false);
 }
 
 /// Collects the resolved values and where each came from.
@@ -283,6 +289,16 @@ pub fn resolve(w: &WorldDef, facts: SceneFacts) -> (WorldKeys, Vec<Setting>) {
         r.key("sleep_speed_mps", w.sleep_speed_mps, 0.05, "5 cm/s")
     };
     let sleep_after_s = r.key("sleep_after_s", w.sleep_after_s, 0.5, "Box2D's half second");
+    let partial_sleep = if falls {
+        r.key(
+            "partial_sleep",
+            w.partial_sleep,
+            true,
+            "under gravity a pile sleeps from the bottom up while its last bodies still slide",
+        )
+    } else {
+        r.key("partial_sleep", w.partial_sleep, false, "no gravity: nothing rests on anything")
+    };
     let keys = WorldKeys {
         tick_hz,
         gravity,
@@ -299,6 +315,7 @@ pub fn resolve(w: &WorldDef, facts: SceneFacts) -> (WorldKeys, Vec<Setting>) {
         friction,
         sleep_speed_mps,
         sleep_after_s,
+        partial_sleep,
     };
     (keys, r.settings)
 }
@@ -326,7 +343,7 @@ mod tests {
         names.sort_unstable();
         names.dedup();
         assert_eq!(names.len(), settings.len());
-        assert_eq!(settings.len(), 15, "every [world] key but the name");
+        assert_eq!(settings.len(), 16, "every [world] key but the name");
     }
 
     /// The rewind bound follows the rollback window unless the scene sets it.

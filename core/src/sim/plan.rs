@@ -32,6 +32,8 @@ pub struct Plan {
     pub rollback: bool,
     /// Islands fall asleep after this many still ticks (0: never).
     pub sleep_after_ticks: u32,
+    /// Islands also sleep in parts, from the bottom up (gravity and `partial_sleep`).
+    pub partial_sleep: bool,
     /// Some class is a character: the controller runs before gravity.
     pub characters: bool,
 }
@@ -81,6 +83,7 @@ impl Plan {
             gravity: cfg.gravity != glam::DVec3::ZERO,
             rollback: cfg.window_ticks > 0,
             sleep_after_ticks: cfg.sleep_after_ticks,
+            partial_sleep: cfg.partial_sleep && cfg.gravity != glam::DVec3::ZERO,
             characters: cfg.classes.props.iter().any(|p| p.character.is_some()),
         }
     }
@@ -119,8 +122,9 @@ impl fmt::Display for Plan {
         } else {
             writeln!(
                 f,
-                "  sleeping        islands still for {} ticks; sleepers are obstacles only",
-                self.sleep_after_ticks
+                "  sleeping        islands still for {} ticks{}; sleepers are obstacles only",
+                self.sleep_after_ticks,
+                if self.partial_sleep { ", and bodies still on sleeping supports" } else { "" }
             )?;
         }
         writeln!(f, "  characters      {}", on(self.characters))?;

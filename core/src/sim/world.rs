@@ -178,6 +178,8 @@ pub struct SimConfig {
     pub sleep_speed_mps: f64,
     /// An island whose bodies have all been still this many ticks falls asleep (0: never).
     pub sleep_after_ticks: u32,
+    /// Under gravity, islands also sleep in parts, from the bottom up ([`crate::sim::island`]).
+    pub partial_sleep: bool,
     /// Most bodies the world may hold (spawns beyond it are refused).
     pub max_bodies: u32,
     /// Rollback window in ticks.

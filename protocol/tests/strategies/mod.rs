@@ -388,6 +388,7 @@ fn scene() -> impl Strategy<Value = ServerMessage> {
                     friction: 0.5,
                     sleep_speed_mps: 0.05,
                     sleep_after_ticks: tick_hz / 2,
+                    partial_sleep: tick_hz % 2 == 0,
                     max_bodies: 100_000,
                     window_ticks: 16,
                     input_lead_ticks: 8,

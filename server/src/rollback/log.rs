@@ -176,6 +176,7 @@ fn settings(cfg: &SimConfig) -> Vec<(String, String)> {
         ("friction", cfg.friction.to_string()),
         ("sleep_speed_mps", cfg.sleep_speed_mps.to_string()),
         ("sleep_after_ticks", cfg.sleep_after_ticks.to_string()),
+        ("partial_sleep", cfg.partial_sleep.to_string()),
         ("window_ticks", cfg.window_ticks.to_string()),
         ("toi_tolerance", cfg.bisect.tolerance.to_string()),
         ("max_resolutions_per_tick", cfg.max_resolutions_per_tick.to_string()),

@@ -387,7 +387,7 @@ fn scene_path(name: &str) -> PathBuf {
 /// Whether a scene writes none of the keys that decide resting behaviour: the scenes the bounds
 /// of `--check` hold.
 fn untuned(scene: &Scene) -> bool {
-    const TUNING: [&str; 7] = [
+    const TUNING: [&str; 8] = [
         "default_response",
         "restitution",
         "friction",
@@ -395,6 +395,7 @@ fn untuned(scene: &Scene) -> bool {
         "bounce_threshold_mps",
         "sleep_speed_mps",
         "sleep_after_s",
+        "partial_sleep",
     ];
     !scene.settings.iter().any(|s| TUNING.contains(&s.key) && s.source == Source::Scene)
 }
