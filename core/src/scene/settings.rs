@@ -289,16 +289,12 @@ pub fn resolve(w: &WorldDef, facts: SceneFacts) -> (WorldKeys, Vec<Setting>) {
         r.key("sleep_speed_mps", w.sleep_speed_mps, 0.05, "5 cm/s")
     };
     let sleep_after_s = r.key("sleep_after_s", w.sleep_after_s, 0.5, "Box2D's half second");
-    let partial_sleep = if falls {
-        r.key(
-            "partial_sleep",
-            w.partial_sleep,
-            true,
-            "under gravity a pile sleeps from the bottom up while its last bodies still slide",
-        )
-    } else {
-        r.key("partial_sleep", w.partial_sleep, false, "no gravity: nothing rests on anything")
-    };
+    let partial_sleep = r.key(
+        "partial_sleep",
+        w.partial_sleep,
+        false,
+        "islands sleep whole: in parts, the untuned pile ends past its height bound (BENCHMARKS.md)",
+    );
     let keys = WorldKeys {
         tick_hz,
         gravity,

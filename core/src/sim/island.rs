@@ -3,7 +3,7 @@
 //! bodies. Both walk the touching list in its sorted order over slots in id order, so the
 //! result never depends on anything but the world.
 //!
-//! Under gravity with `partial_sleep` (the default there), an island also sleeps in parts, from
+//! Under gravity with `partial_sleep` (a scene's choice), an island also sleeps in parts, from
 //! the bottom up: a body still long enough whose every dynamic partner below it (along gravity)
 //! sleeps falls asleep on its own, though bodies above it still move, and a sleeper woken wakes
 //! the sleepers above it (what rests on it), not those it rests on. A pile whose last few bodies
