@@ -1526,6 +1526,8 @@ impl Run<'_> {
         r.views_matched = self.sessions().map(|s| s.events().matched).sum();
         r.views_mismatched = self.sessions().map(|s| s.events().mismatched).sum();
         r.views_unverified = self.sessions().map(|s| s.events().unverified).sum();
+        r.views_recovered = self.sessions().map(|s| s.events().recovered).sum();
+        r.views_given_up = self.sessions().map(|s| s.events().given_up).sum();
         for (c, back) in clients.iter().flat_map(|c| c.returns.iter().map(move |b| (c, b))) {
             // A client that left before its first welcome reached it knew no avatar to keep.
             let in_grace = back.away + Duration::from_millis(250) < GRACE && back.avatar.is_some();

@@ -116,6 +116,11 @@ pub struct Report {
     pub views_matched: u64,
     /// Confirmed ticks whose view did not.
     pub views_mismatched: u64,
+    /// Ticks a client held events of when a later confirmation came (its batch missed) whose
+    /// batch the server's `query/confirmed` brought back.
+    pub views_recovered: u64,
+    /// Such ticks given up on (no batch back in time): counted in `views_mismatched` too.
+    pub views_given_up: u64,
     /// The server's tick time over the load, ms: percentiles of every tick its stats messages
     /// reported while the clients ran.
     pub server_tick_ms_p50: f64,
@@ -431,7 +436,11 @@ impl std::fmt::Display for Report {
             self.acked_first_2s,
             pct(self.late_share_steady)
         )?;
-        writeln!(f, "  views    {} confirmed ticks matched, {} differed", self.views_matched, self.views_mismatched)?;
+        writeln!(
+            f,
+            "  views    {} confirmed ticks matched, {} differed ({} of them missed and not recovered in time; {} recovered)",
+            self.views_matched, self.views_mismatched, self.views_given_up, self.views_recovered
+        )?;
         self.prediction.write(f)?;
         if self.state_frames > 0 {
             writeln!(

@@ -46,6 +46,10 @@ pub struct EventView {
     pub implied: u64,
     /// Ticks in doubt that the batch the server kept made final.
     pub recovered: u64,
+    /// Ticks in doubt given up on (no batch came back in time): compared with no events, so
+    /// each is also in `mismatched`, a view the client could not check rather than one it held
+    /// wrong.
+    pub given_up: u64,
     /// Ticks before this one may have lost provisional events or corrections to a lost link.
     lost_before: Option<Tick>,
     /// Ticks made final by a later confirmation while they held events, with those events.
@@ -144,6 +148,7 @@ impl EventView {
     /// final with no events for this client, as the later confirmation implied.
     pub fn give_up(&mut self, tick: Tick, mut each: impl FnMut(Tick, bool)) {
         if let Some(mine) = self.doubtful.remove(&tick) {
+            self.given_up += 1;
             let matched = self.compare(tick, &mine, &[]);
             each(tick, matched);
         }
@@ -302,7 +307,11 @@ pub(crate) mod tests {
         let doubtful: Vec<Tick> = v.doubtful().collect();
         assert_eq!(doubtful, [Tick(7)], "tick 7's event was never confirmed");
         v.give_up(Tick(7), |_, _| {});
-        assert_eq!((v.forgotten, v.mismatched, v.doubtful().count()), (0, 2, 0));
+        assert_eq!(
+            (v.forgotten, v.mismatched, v.given_up, v.doubtful().count()),
+            (0, 2, 2, 0),
+            "both differed as given up"
+        );
     }
 
     /// A tick in doubt (its batch lost, a later one came) is made final by the batch the server
