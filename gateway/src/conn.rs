@@ -110,6 +110,13 @@ async fn relay(
     loop {
         // Whatever is queued goes out before the connection waits again.
         mailbox.drain_into(&mut batch);
+        if !batch.is_empty() && batch.iter().all(|q| q.kind == Kind::State) {
+            // State frames come in bursts, every player's at once 20 times a second, and wake
+            // every connection in turn: one woken by state frames alone lets those woken since
+            // (by an ack behind the burst) write first, then sends what it has by then.
+            tokio::task::yield_now().await;
+            mailbox.drain_into(&mut batch);
+        }
         if !batch.is_empty() {
             if let Err(why) = write(tx, gw, &mut batch).await {
                 return why;
