@@ -15,7 +15,7 @@
 //! would cost a TCP connection and its buffers each, for nothing the test measures, and a single
 //! session would serialise every client's traffic through one link.
 
-use crate::report::{quantile, Report};
+use crate::report::{quantile, Report, UNEXPECTED_KEPT};
 use crate::timing::{Margins, Timing};
 use hdrhistogram::Histogram;
 use impact_client::netsim::{DelayLine, Link, Rng};
@@ -306,6 +306,10 @@ struct Return {
     full_frame: bool,
     /// An input it sent after it returned was accepted.
     resumed: bool,
+    /// Of the inputs it sent after it returned: how many were refused (the last reason) and
+    /// known lost, told when it never resumed.
+    refused: (u32, Option<RejectReason>),
+    lost: u32,
 }
 
 /// Inputs sent this long after play began are "early": the clock has only the sync's estimate.
@@ -1036,6 +1040,8 @@ impl Run<'_> {
                         welcomed: None,
                         full_frame: false,
                         resumed: false,
+                        refused: (0, None),
+                        lost: 0,
                     };
                     c.returns.push(back);
                 }
@@ -1196,7 +1202,14 @@ impl Run<'_> {
             }
             ServerMessage::Ack(a) if a.client == c.id => {
                 // A second ack of one seq: an input applied twice.
-                r.answers_unexpected += u64::from(!c.accepted(a.seq));
+                if !c.accepted(a.seq) {
+                    r.not_owed(
+                        now.saturating_duration_since(self.load_start),
+                        c.id,
+                        a.seq,
+                        format!("ack at tick {}, acked before", a.tick.0),
+                    );
+                }
                 // Seqs before it the server says it accepted: owed nothing more (their own acks
                 // may have been lost on the way).
                 for seq in impact_client::session::accepted_before(a.seq, a.accepted_before) {
@@ -1219,7 +1232,15 @@ impl Run<'_> {
                     }
                     None => false,
                 };
-                r.answers_unexpected += u64::from(!expected);
+                if !expected {
+                    let held = match j.seq {
+                        Some(seq) if c.acked.contains(&seq) => "acked before",
+                        Some(_) => "never acked",
+                        None => "no seq",
+                    };
+                    let what = format!("reject {} (seq {:?}), no copy owed an answer, {held}", j.reason.name(), j.seq);
+                    r.not_owed(now.saturating_duration_since(self.load_start), c.id, j.seq.unwrap_or(0), what);
+                }
                 *r.rejects.entry(j.reason.name().to_string()).or_insert(0) += 1;
             }
             ServerMessage::Confirmed(b) => {
@@ -1296,6 +1317,13 @@ impl Run<'_> {
             // its bound (4,096 news a client, a soak's slow climb of memory).
             s.take_event_news().for_each(drop);
             for a in s.take_answers() {
+                if let Some(back) = c.returns.last_mut().filter(|b| a.sent >= b.at) {
+                    match a.outcome {
+                        Outcome::Rejected(why) => back.refused = (back.refused.0 + 1, Some(why)),
+                        Outcome::Lost => back.lost += 1,
+                        _ => {}
+                    }
+                }
                 if a.outcome == Outcome::Lost {
                     // Known to the client as never having reached the server (PROTOCOL.md,
                     // "Presence"): owed nothing, and not silent.
@@ -1449,6 +1477,52 @@ impl Run<'_> {
         )
     }
 
+    /// The returns after dropped sessions, and what the report tells one by one: the clients
+    /// whose view of a confirmed tick differed, and the returns that never resumed.
+    fn tell_returns_and_views(&self, r: &mut Report) {
+        for c in self.clients.iter().filter(|c| !c.session.events().mismatches.is_empty()) {
+            if r.views_differed.len() < UNEXPECTED_KEPT {
+                let ticks: Vec<String> = c
+                    .session
+                    .events()
+                    .mismatches
+                    .iter()
+                    .map(|(t, held, confirmed)| format!("{} ({held} held, {confirmed} confirmed)", t.0))
+                    .collect();
+                r.views_differed.push(format!(
+                    "client {} epoch {}: ticks {}",
+                    c.id.0,
+                    c.session.epoch().0,
+                    ticks.join(", ")
+                ));
+            }
+        }
+        for (c, back) in self.clients.iter().flat_map(|c| c.returns.iter().map(move |b| (c, b))) {
+            // A client that left before its first welcome reached it knew no avatar to keep.
+            let in_grace = back.away + Duration::from_millis(250) < GRACE && back.avatar.is_some();
+            r.returns += 1;
+            r.returns_welcomed += u64::from(back.welcomed.is_some());
+            r.returns_in_grace += u64::from(in_grace);
+            r.returns_kept_avatar += u64::from(in_grace && back.welcomed == Some(true));
+            r.returns_drawing += u64::from(c.game);
+            r.returns_full_frame += u64::from(c.game && back.full_frame);
+            r.returns_resumed += u64::from(back.resumed);
+            if !back.resumed && r.unresumed.len() < UNEXPECTED_KEPT {
+                r.unresumed.push(format!(
+                "client {} back at {:.3} s after {:.3} s away, welcomed {:?}, inputs after: {} refused (last {:?}), {} lost, {} awaiting",
+                c.id.0,
+                back.at.saturating_duration_since(self.load_start).as_secs_f64(),
+                back.away.as_secs_f64(),
+                back.welcomed,
+                back.refused.0,
+                back.refused.1.map(RejectReason::name),
+                back.lost,
+                c.session.pending_inputs(),
+            ));
+            }
+        }
+    }
+
     /// The report: what was counted, with the quantiles, rates and per-client figures drawn from
     /// it. `received` is what the clients had received by the end of the load.
     fn report(mut self, received: Received) -> Report {
@@ -1528,17 +1602,7 @@ impl Run<'_> {
         r.views_unverified = self.sessions().map(|s| s.events().unverified).sum();
         r.views_recovered = self.sessions().map(|s| s.events().recovered).sum();
         r.views_given_up = self.sessions().map(|s| s.events().given_up).sum();
-        for (c, back) in clients.iter().flat_map(|c| c.returns.iter().map(move |b| (c, b))) {
-            // A client that left before its first welcome reached it knew no avatar to keep.
-            let in_grace = back.away + Duration::from_millis(250) < GRACE && back.avatar.is_some();
-            r.returns += 1;
-            r.returns_welcomed += u64::from(back.welcomed.is_some());
-            r.returns_in_grace += u64::from(in_grace);
-            r.returns_kept_avatar += u64::from(in_grace && back.welcomed == Some(true));
-            r.returns_drawing += u64::from(c.game);
-            r.returns_full_frame += u64::from(c.game && back.full_frame);
-            r.returns_resumed += u64::from(back.resumed);
-        }
+        self.tell_returns_and_views(&mut r);
         let retired = self.retired.iter().filter(|r| r.0).map(|r| &r.1);
         r.prediction =
             crate::report::Prediction::over(clients.iter().filter(|c| c.game).map(|c| &c.session).chain(retired));

@@ -3,6 +3,9 @@
 use serde::Serialize;
 use std::collections::BTreeMap;
 
+/// Answers not owed that a report describes one by one.
+pub const UNEXPECTED_KEPT: usize = 8;
+
 /// Everything a load run measured.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct Report {
@@ -55,6 +58,15 @@ pub struct Report {
     /// Answers for which no delivery was owed, and second acks of one seq (an input applied
     /// twice). Should be 0.
     pub answers_unexpected: u64,
+    /// The first [`UNEXPECTED_KEPT`] of those, each told: when, which client and seq, what the
+    /// answer said and what the client held of that seq then.
+    pub unexpected: Vec<String>,
+    /// Returning clients none of whose inputs after was accepted (the first
+    /// [`UNEXPECTED_KEPT`]), each told.
+    pub unresumed: Vec<String>,
+    /// Clients whose view of a confirmed tick differed (the first [`UNEXPECTED_KEPT`]), with the
+    /// ticks.
+    pub views_differed: Vec<String>,
     /// Answers the sessions matched to no input awaiting one (a reject of a copy sent before
     /// the first answer came counts here, and is expected).
     pub unmatched_answers: u64,
@@ -300,6 +312,14 @@ impl Report {
     /// the 99th percentile, and every message it received had room in its inbox.
     pub fn load_kept_up(&self) -> bool {
         self.load_lag_ms_p99 <= LAG_BOUND_MS && self.load_inbox_dropped == 0
+    }
+
+    /// Counts an answer no delivery was owed, and tells the first few: `at` into the load.
+    pub fn not_owed(&mut self, at: std::time::Duration, client: impact_protocol::ClientId, seq: u32, what: String) {
+        self.answers_unexpected += 1;
+        if self.unexpected.len() < UNEXPECTED_KEPT {
+            self.unexpected.push(format!("{:.3} s: client {} seq {seq}: {what}", at.as_secs_f64(), client.0));
+        }
     }
 }
 

@@ -25,6 +25,9 @@ pub const MAX_TICKS: usize = 1024;
 /// The most ticks in doubt at once; past it a tick is compared at once, with no events.
 pub const MAX_DOUBTFUL: usize = 64;
 
+/// Mismatched ticks an [`EventView`] describes.
+pub const MISMATCHES_KEPT: usize = 8;
+
 /// Per-tick events as the client holds them.
 #[derive(Debug, Default)]
 pub struct EventView {
@@ -33,6 +36,9 @@ pub struct EventView {
     pub matched: u64,
     /// Ticks whose view differed from the confirmed batch.
     pub mismatched: u64,
+    /// The first [`MISMATCHES_KEPT`] of those: the tick, the events the view held and the
+    /// events confirmed (to tell a missed event from a wrong one when debugging).
+    pub mismatches: Vec<(Tick, usize, usize)>,
     /// Corrections applied.
     pub corrections: u64,
     /// Ticks forgotten unconfirmed because [`MAX_TICKS`] were held.
@@ -166,6 +172,9 @@ impl EventView {
             self.matched += 1;
         } else {
             self.mismatched += 1;
+            if self.mismatches.len() < MISMATCHES_KEPT {
+                self.mismatches.push((tick, mine.len(), confirmed.len()));
+            }
         }
         ok
     }

@@ -37,9 +37,11 @@ pub fn run_seeds(kind: &str, var: &str, seeds: Vec<u64>, run: fn(u64) -> Result<
 pub fn violations(r: &impact_client_sim::report::Report, wrong: &mut Vec<String>) {
     if r.answers_unexpected > 0 {
         wrong.push(format!("{} answers were not owed (an input answered twice?)", r.answers_unexpected));
+        wrong.extend(r.unexpected.iter().map(|u| format!("    {u}")));
     }
     if r.views_mismatched > 0 || r.views_matched == 0 {
         wrong.push(format!("views: {} matched, {} differed", r.views_matched, r.views_mismatched));
+        wrong.extend(r.views_differed.iter().map(|v| format!("    {v}")));
     }
     if r.confirmed_changed > 0 {
         wrong.push(format!("{} confirmed batches changed what a client held confirmed", r.confirmed_changed));
