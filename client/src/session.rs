@@ -129,10 +129,10 @@ pub fn accepted_before(seq: u32, bits: u64) -> impl Iterator<Item = u32> {
 struct LostCheck {
     /// When the welcome came.
     welcomed: Instant,
-    /// When the inputs sent before it and still unanswered are lost.
-    due: Instant,
     /// The welcome's `next_seq`.
     next_seq: u32,
+    /// The probe sent with the check: its pong settles it when no input is answered first.
+    probe: u32,
 }
 
 /// How long a tick a message named stands as evidence of the server's present
@@ -157,10 +157,11 @@ pub enum Outcome {
     /// Refused, for this reason (PROTOCOL.md, "Rejects").
     Rejected(RejectReason),
     /// Never reached the server: the welcome after a reconnect or a takeover (`next_seq`) said
-    /// it was not accepted, it was last sent before that welcome, and a round trip after it
-    /// (with a margin) no answer had come; or an input made after its last copy went was acked,
-    /// and that ack does not count it accepted (a client's messages arrive in order). Its
-    /// actions were not applied; send them again as a new input if they still matter.
+    /// it was not accepted, it was last sent before that welcome, and something sent after the
+    /// welcome was answered while it was not; or an input made after its last copy went was
+    /// acked, and that ack does not count it accepted (a client's messages arrive in order, and
+    /// are answered in order). Its actions were not applied; send them again as a new input if
+    /// they still matter.
     Lost,
 }
 
@@ -377,7 +378,12 @@ pub struct Session {
     heard: Option<Instant>,
     /// The newest owner epoch heard (see [`Session::receive_from`]).
     epoch: Epoch,
-    /// After a second welcome: when to answer the inputs it left unaccepted as lost.
+    /// After a restored link: the server's present then, as the session estimated it. The first
+    /// message published at or past it was published after the link came back, and every tick
+    /// before its present may have lost events (see [`Session::published_at`]).
+    path_check: Option<Tick>,
+    /// After a second welcome: which inputs it left unaccepted, answered lost once something sent
+    /// after it is answered.
     lost_check: Option<LostCheck>,
     /// The freshest evidence of the server's tick: a tick a message named and when it came,
     /// the one that run on at the full rate puts the server furthest (a message that came late
@@ -421,6 +427,7 @@ impl Session {
             heard: None,
             epoch: Epoch::default(),
             lost_check: None,
+            path_check: None,
             newest_named: None,
             recovery: BTreeMap::new(),
         }
@@ -726,7 +733,10 @@ impl Session {
     /// network handover): what the server published meanwhile never arrived, so the ticks before
     /// the server's present are taken from the confirmed stream as they come, not compared with
     /// the view ([`crate::events::EventView::unverified`]; their `EventNews::Confirmed` says
-    /// `matched: false`, so a game redraws them from the confirmed events).
+    /// `matched: false`, so a game redraws them from the confirmed events). The client's link
+    /// being back does not mean the server's is (a restarted router: each side reconnects in its
+    /// own time), so the ticks before the server's present when it published the first message
+    /// heard since are taken the same way.
     pub fn link_restored(&mut self, now: Instant) {
         // The clock's estimate of the server's present (or the newest tick held), and a margin
         // for an estimate a little behind: a tick left out of the comparison costs nothing, a
@@ -738,6 +748,7 @@ impl Session {
         let run_on = self.newest_named.map(|n| Tick(self.run_on(n, now) as u32));
         if let Some(t) = self.clock.server_tick(now).max(newest.map(Tick::next)).max(run_on) {
             self.events.lost_before(Tick(t.0.saturating_add(MARGIN_TICKS)));
+            self.path_check = Some(t);
         }
     }
 
@@ -791,6 +802,9 @@ impl Session {
         match msg {
             ServerMessage::Welcome(w) if w.client == me => self.welcomed(w, now),
             ServerMessage::Pong(p) if p.client == me => {
+                if let Some(c) = self.lost_check.filter(|c| c.probe == p.id) {
+                    self.answered_after(c.welcomed, now);
+                }
                 let Some((id, sent)) = self.probe else { return };
                 if id != p.id || self.status != Status::Syncing {
                     return;
@@ -829,6 +843,7 @@ impl Session {
                 }
                 if let Some(made) = made {
                     self.lost_before(&a, made, now);
+                    self.answered_after(made, now);
                 }
             }
             ServerMessage::Reject(j) if j.client == me => {
@@ -843,6 +858,7 @@ impl Session {
                             self.clock.back_off(t, view, n);
                         }
                         self.answered(seq, sent, Outcome::Rejected(j.reason), now);
+                        self.answered_after(sent.at, now);
                     }
                     // An accepted input whose entity went away before its tick was re-simulated
                     // is told so by a second message (PROTOCOL.md): not unmatched.
@@ -864,6 +880,10 @@ impl Session {
                 self.news(EventNews::Corrected(c));
             }
             ServerMessage::Confirmed(b) => {
+                // Published as the tick left the server's rollback window.
+                if let Some(window) = self.welcome.as_ref().map(|w| w.window_ticks) {
+                    self.published_at(Tick(b.tick.0.saturating_add(window)));
+                }
                 let (news, dropped) = (&mut self.news, &mut self.stats.event_news_dropped);
                 self.events
                     .confirm(&b, |tick, matched| push_news(news, dropped, EventNews::Confirmed { tick, matched }));
@@ -910,7 +930,18 @@ impl Session {
         f64::from(tick.0) + now.saturating_duration_since(at).as_secs_f64() * hz
     }
 
+    /// A message published when the server was at `present` arrived: the first since a
+    /// restored link published at or past the session's estimate then ([`Session::link_restored`])
+    /// shows the path whole again, and every tick before `present` may have lost events.
+    fn published_at(&mut self, present: Tick) {
+        if self.path_check.is_some_and(|p| present >= p) {
+            self.path_check = None;
+            self.events.lost_before(present);
+        }
+    }
+
     fn observe(&mut self, tick: Tick, now: Instant) {
+        self.published_at(tick);
         self.stats.clock_resyncs += u64::from(self.clock.observe(tick, now));
         if self.newest_named.is_none_or(|n| f64::from(tick.0) >= self.run_on(n, now) || now - n.1 > NAMED_FOR) {
             self.newest_named = Some((tick, now));
@@ -944,15 +975,18 @@ impl Session {
     }
 
     /// Welcomed again (a reconnect, a takeover): the inputs at or above `next_seq` were never
-    /// accepted. Those sent before this welcome may still be on their way; a round trip later
-    /// (with a margin) every one still unanswered and not carried again since is lost: it is
-    /// answered then, [`Outcome::Lost`] ([`Session::poll_transmit`] looks), so none is silently
-    /// gone.
+    /// accepted. Those sent before this welcome may still be on their way, or their answers may
+    /// (a path that stalls after the welcome holds them for seconds), so no length of time tells.
+    /// Order does: the server gets a client's messages in order and answers them in order on its
+    /// `ack` key, so once anything sent after the welcome is answered (a later input's ack or
+    /// reject, or the pong to the probe sent now), every input sent before it that is still
+    /// unanswered, and not carried again since, never reached the server. It is answered
+    /// [`Outcome::Lost`] then ([`Session::answered_after`]), so none is silently gone.
     fn lost_at_welcome(&mut self, w: &Welcome, now: Instant) {
-        let hz = f64::from(w.tick_hz.max(1));
-        let rtt = self.clock.lead().map_or(0.0, |l| l / hz).max(self.stats.sync_rtt_max_s);
-        let due = now + Duration::from_secs_f64(rtt * 2.0 + 0.1);
-        self.lost_check = Some(LostCheck { welcomed: now, due, next_seq: w.next_seq });
+        let probe = self.next_probe;
+        self.next_probe = self.next_probe.wrapping_add(1);
+        self.push(ClientMessage::Ping(TimePing { client: self.cfg.client, id: probe }));
+        self.lost_check = Some(LostCheck { welcomed: now, next_seq: w.next_seq, probe });
     }
 
     /// An ack of an input made at `made`: an earlier input within its `accepted_before` bits
@@ -980,9 +1014,10 @@ impl Session {
         }
     }
 
-    /// The check [`Session::lost_at_welcome`] scheduled, once it is due.
-    fn check_lost(&mut self, now: Instant) {
-        let Some(c) = self.lost_check.filter(|c| now >= c.due) else { return };
+    /// Something first sent at `sent` was answered: the check [`Session::lost_at_welcome`] left
+    /// is settled when that was after the welcome.
+    fn answered_after(&mut self, sent: Instant, now: Instant) {
+        let Some(c) = self.lost_check.filter(|c| sent >= c.welcomed) else { return };
         self.lost_check = None;
         self.answer_lost(|seq: u32, s: &Sent| !precedes(seq, c.next_seq) && s.carried < c.welcomed, now);
     }
@@ -1072,7 +1107,6 @@ impl Session {
     /// The next message to send at `now`, if any: the sync's probes, then inputs in order.
     /// Call it until it returns `None` each frame.
     pub fn poll_transmit(&mut self, now: Instant) -> Option<ClientMessage> {
-        self.check_lost(now);
         self.give_up_recovery(now);
         if self.status == Status::Syncing {
             let started = *self.sync_started.get_or_insert(now);
@@ -1100,7 +1134,7 @@ impl Session {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use impact_protocol::{InputAck, TimePong};
+    use impact_protocol::{InputAck, InputReject, TimePong};
 
     fn welcome(next_seq: u32) -> ServerMessage {
         ServerMessage::Welcome(Welcome {
@@ -1157,9 +1191,11 @@ mod tests {
     }
 
     /// Welcomed again after a reconnect: an input sent before the welcome that the server never
-    /// accepted (at or above next_seq) and that no answer follows within a round trip is
-    /// answered as lost; one accepted before (below next_seq) is not; one sent after the welcome
-    /// keeps waiting for its answer.
+    /// accepted (at or above next_seq) is answered as lost once something sent after the welcome
+    /// is answered (here the probe the welcome sent), however long that takes: a path that stalls
+    /// after the welcome holds the answers for seconds, and a refusal it held is an answer, not a
+    /// loss. One accepted before (below next_seq) is not lost; one sent after the welcome keeps
+    /// waiting for its answer.
     #[test]
     fn inputs_lost_with_the_link_are_answered_as_lost() {
         let t0 = Instant::now();
@@ -1176,12 +1212,51 @@ mod tests {
         t += Duration::from_secs(1);
         s.receive(welcome(seqs[0] + 1), t);
         let after = s.input(walk(), t).unwrap();
-        assert!(s.take_answers().next().is_none(), "nothing is lost before a round trip has passed");
-        t += Duration::from_secs(2);
+        let probe = std::iter::from_fn(|| s.poll_transmit(t))
+            .find_map(|m| if let ClientMessage::Ping(p) = m { Some(p.id) } else { None })
+            .expect("a welcome again sends a probe");
+        // The path stalls: nothing comes for 3 s, and that alone loses nothing.
+        t += Duration::from_secs(3);
         while s.poll_transmit(t).is_some() {}
+        assert!(s.take_answers().next().is_none(), "no length of silence tells an input lost");
+        // Then what it held, in order: the refusal of one input, the probe's answer.
+        let stale = InputReject {
+            client: ClientId(7),
+            seq: Some(seqs[1]),
+            reason: RejectReason::Stale,
+            tick: None,
+            detail: String::new(),
+            oldest_tick: None,
+            newest_tick: None,
+        };
+        s.receive(ServerMessage::Reject(stale), t);
+        assert!(s.awaits(seqs[2]), "an answer to an input sent before the welcome settles nothing");
+        s.receive(ServerMessage::Pong(TimePong { client: ClientId(7), id: probe, server_tick: Tick(300) }), t);
         let answers: Vec<(u32, Outcome)> = s.take_answers().map(|a| (a.seq, a.outcome)).collect();
-        assert_eq!(answers, vec![(seqs[1], Outcome::Lost), (seqs[2], Outcome::Lost)]);
-        assert_eq!((s.stats().inputs_lost, s.pending_inputs()), (2, 1), "input {after} still waits");
+        assert_eq!(answers, vec![(seqs[1], Outcome::Rejected(RejectReason::Stale)), (seqs[2], Outcome::Lost)]);
+        assert_eq!((s.stats().inputs_lost, s.pending_inputs()), (1, 1), "input {after} still waits");
+    }
+
+    /// After a welcome again, the ack of an input made after it settles every input made before
+    /// it, as the probe's answer would: those further back than the ack's `accepted_before`
+    /// reaches (64 seqs) too.
+    #[test]
+    fn an_ack_after_a_welcome_again_tells_the_inputs_before_it_lost() {
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig { redundancy: 0, ..SessionConfig::new(ClientId(7)) });
+        s.receive(welcome(0), t0);
+        let t = t0 + SYNC_TIMEOUT;
+        while s.poll_transmit(t).is_some() {}
+        let before: Vec<u32> = (0..70).map(|_| s.input(walk(), t).unwrap()).collect();
+        while s.poll_transmit(t).is_some() {}
+        let back = t + Duration::from_secs(1);
+        s.receive(welcome(before[0]), back);
+        let after = s.input(walk(), back).unwrap();
+        while s.poll_transmit(back).is_some() {}
+        s.receive(ack(after, 200, 4), back + Duration::from_secs(2));
+        let lost: Vec<u32> = s.take_answers().filter(|a| a.outcome == Outcome::Lost).map(|a| a.seq).collect();
+        assert_eq!(lost.len(), 70, "{lost:?}");
+        assert_eq!(s.pending_inputs(), 0);
     }
 
     /// A link lost and back: the ticks the server published meanwhile are confirmed without a
@@ -1202,6 +1277,52 @@ mod tests {
         assert_eq!((s.events().mismatched, s.events().unverified), (0, 2));
         s.receive(batch(130), t0);
         assert_eq!(s.events().matched, 1, "a tick after the link came back is compared");
+    }
+
+    /// A session welcomed at tick 100 whose link was lost and came back at once, and when.
+    fn restored() -> (Session, Instant) {
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig::new(ClientId(7)));
+        s.receive(welcome(0), t0);
+        s.link_restored(t0);
+        (s, t0)
+    }
+
+    /// A batch of one event at `tick`.
+    fn batch(tick: u32) -> impact_protocol::EventBatch {
+        let events = vec![CollisionEvent { tick: Tick(tick), ..crate::events::tests::event(1, 2, 0.5) }];
+        impact_protocol::EventBatch { tick: Tick(tick), revision: 0, events }
+    }
+
+    /// The client's link back before the server's (each side of a restarted router reconnects
+    /// in its own time): what the server published until its own link was back was lost too, so
+    /// the ticks before the first message it published after are left uncompared.
+    #[test]
+    fn ticks_before_the_first_message_after_a_restored_link_are_uncompared() {
+        let (mut s, t0) = restored();
+        // A second on, with the server at tick 164, its first message since comes.
+        let t = t0 + Duration::from_secs(1);
+        s.receive(ServerMessage::Events(batch(164)), t);
+        // Tick 150's events went out before the server's link was back: never held.
+        s.receive(ServerMessage::Confirmed(batch(150)), t);
+        assert_eq!((s.events().mismatched, s.events().unverified), (0, 1));
+        s.receive(ServerMessage::Confirmed(batch(164)), t);
+        assert_eq!(s.events().matched, 1, "from that message on, ticks are compared");
+    }
+
+    /// The first message since a restored link may be a confirmed batch, published as its tick
+    /// left the server's window (16 ticks): the ticks before that present are left uncompared,
+    /// its own among them.
+    #[test]
+    fn a_confirmed_batch_first_after_a_restored_link_shows_the_server_present() {
+        let (mut s, t0) = restored();
+        let t = t0 + Duration::from_secs(1);
+        s.receive(ServerMessage::Confirmed(batch(150)), t);
+        s.receive(ServerMessage::Events(batch(170)), t);
+        s.receive(ServerMessage::Confirmed(batch(160)), t);
+        assert_eq!((s.events().mismatched, s.events().unverified), (0, 2), "150 and 160 went out before tick 166");
+        s.receive(ServerMessage::Confirmed(batch(170)), t);
+        assert_eq!(s.events().matched, 1);
     }
 
     /// A link back after old messages came late and pulled the clock back (a flood after the
@@ -1304,6 +1425,7 @@ mod tests {
         // Reconnected: the server accepted up to 5.
         s.receive(welcome(6), t);
         s.input(walk(), t).unwrap();
+        assert!(matches!(s.poll_transmit(t), Some(ClientMessage::Ping(_))), "the welcome's probe first");
         assert_eq!(seqs(s.poll_transmit(t).unwrap()), [6, 7]);
         // A server that remembers more than the client sent: the client's seqs jump past it.
         s.receive(welcome(20), t);
@@ -1371,7 +1493,6 @@ mod tests {
     /// answer for the same seq is counted as unmatched, not repeated.
     #[test]
     fn answers_reach_the_game_once_each() {
-        use impact_protocol::InputReject;
         let t0 = Instant::now();
         let mut s = Session::new(SessionConfig::new(ClientId(7)));
         s.receive(welcome(0), t0);

@@ -2420,7 +2420,11 @@ var Session = class {
   nextProbe = 1;
   syncStartedMs = null;
   fullAskedMs = null;
+  /** After a second welcome: the inputs it left unaccepted, answered lost once something sent
+   * after it is answered (its probe's pong, or a later input's ack or reject). */
   lostCheck = null;
+  /** After a restored link: the server's present then, as estimated; see `publishedAt`. */
+  pathCheck = null;
   /** The newest tick the server named, and when: run on at the full rate for `linkRestored`. */
   newestNamed = null;
   /** The event view's ticks in doubt: since when, and whether the transport was given it. */
@@ -2450,6 +2454,7 @@ var Session = class {
         if (msg.client === me) this.welcomed(msg, nowMs);
         return;
       case "pong":
+        if (msg.client === me && this.lostCheck?.probe === msg.id) this.answeredAfter(this.lostCheck.welcomedMs, nowMs);
         if (msg.client !== me || this.status !== "syncing" || !this.probe || this.probe.id !== msg.id) return;
         this.samples.push({ rttMs: nowMs - this.probe.atMs, tick: msg.server_tick, atMs: nowMs });
         this.probe = null;
@@ -2473,7 +2478,10 @@ var Session = class {
           this.stats.acksRecovered++;
           this.answered(seq, s, { kind: "ack_lost" }, nowMs);
         }
-        if (sent) this.lostBefore(msg.seq, msg.accepted_before, sent.atMs, nowMs);
+        if (sent) {
+          this.lostBefore(msg.seq, msg.accepted_before, sent.atMs, nowMs);
+          this.answeredAfter(sent.atMs, nowMs);
+        }
         return;
       }
       case "reject": {
@@ -2488,6 +2496,7 @@ var Session = class {
             this.clock.backOff(msg.tick, sent.view, msg.newest_tick);
           }
           this.answered(seq, sent, { kind: "rejected", reason: msg.reason }, nowMs);
+          this.answeredAfter(sent.atMs, nowMs);
         } else if (msg.reason !== "unknown_entity" && msg.reason !== "not_owner") this.stats.unmatchedAnswers++;
         return;
       }
@@ -2503,6 +2512,7 @@ var Session = class {
         this.pushNews({ kind: "corrected", batch: msg });
         return;
       case "confirmed": {
+        if (this.welcome) this.publishedAt(msg.tick + this.welcome.window_ticks);
         for (const f2 of this.events.confirm(msg)) this.pushNews({ kind: "confirmed", ...f2 });
         const doubtful = this.events.doubtful();
         for (const t of this.recovery.keys()) if (!doubtful.includes(t)) this.recovery.delete(t);
@@ -2533,7 +2543,10 @@ var Session = class {
     }
   }
   /** The link to the server was lost and is back (the gateway's `link_restored`, or a
-   * reconnect): ticks before the server's present are not compared with the view. */
+   * reconnect): ticks before the server's present are not compared with the view. The client's
+   * link being back does not mean the server's is (each side of a restarted router reconnects in
+   * its own time): the ticks before the server's present when it published the first message
+   * heard since are not compared either. */
   linkRestored(nowMs) {
     this.stats.linksRestored++;
     const MARGIN_TICKS = 8;
@@ -2541,7 +2554,19 @@ var Session = class {
     const runOn = this.newestNamed ? this.newestNamed.tick + (nowMs - this.newestNamed.atMs) / 1e3 * hz : null;
     const newest = this.events.newest();
     const t = Math.max(this.clock.serverTick(nowMs) ?? -1, newest === null ? -1 : newest + 1, runOn === null ? -1 : Math.floor(runOn));
-    if (t >= 0) this.events.lostBefore(t + MARGIN_TICKS);
+    if (t >= 0) {
+      this.events.lostBefore(t + MARGIN_TICKS);
+      this.pathCheck = t;
+    }
+  }
+  /** A message published when the server was at `present` arrived: the first since a restored
+   * link published at or past the estimate then shows the path whole again, and every tick
+   * before `present` may have lost events. */
+  publishedAt(present2) {
+    if (this.pathCheck !== null && present2 >= this.pathCheck) {
+      this.pathCheck = null;
+      this.events.lostBefore(present2);
+    }
   }
   /** The remote world's render tick at `nowMs`: the server's present less the delay. */
   renderTick(nowMs) {
@@ -2595,6 +2620,7 @@ var Session = class {
     this.correction = Math.hypot(...off) > 2 ? { offset: [0, 0, 0], atMs: nowMs } : { offset: off, atMs: nowMs };
   }
   observe(tick, nowMs) {
+    this.publishedAt(tick);
     if (this.clock.observe(tick, nowMs)) this.stats.clockResyncs++;
     const hz = this.clock.tickHz ?? 0;
     const n = this.newestNamed;
@@ -2609,14 +2635,24 @@ var Session = class {
     this.outbox.resumeFrom(w.next_seq);
     this.resend = this.resend.filter((i) => this.outbox.awaits(i.seq));
     if (this.stats.welcomes > 1) {
-      const rttS = Math.max((this.clock.lead ?? 0) / Math.max(w.tick_hz, 1), this.stats.syncRttMaxMs / 1e3);
-      this.lostCheck = { welcomedMs: nowMs, dueMs: nowMs + (rttS * 2 + 0.1) * 1e3, nextSeq: w.next_seq };
+      const probe = this.nextProbe;
+      this.nextProbe = (this.nextProbe + 1) % 2 ** 32;
+      this.push({ type: "ping", client: this.config.client, id: probe });
+      this.lostCheck = { welcomedMs: nowMs, nextSeq: w.next_seq, probe };
     }
     if (this.status === "joining") {
       this.status = "syncing";
       this.syncStartedMs = nowMs;
     }
     this.welcome = w;
+  }
+  /** Something first sent at `sentMs` was answered: the check a second welcome left is settled
+   * when that was after the welcome. */
+  answeredAfter(sentMs, nowMs) {
+    const c = this.lostCheck;
+    if (!c || sentMs < c.welcomedMs) return;
+    this.lostCheck = null;
+    this.answerLost((seq, s) => !precedes(seq, c.nextSeq) && s.carriedMs < c.welcomedMs, nowMs);
   }
   /** An earlier input within an ack's bits that the server did not accept, carried by no
    * message since the acked one was made, never reached it (messages arrive in order). */
@@ -2725,11 +2761,6 @@ var Session = class {
       if (nowMs - r.sinceMs < RECOVERY_WAIT_MS) continue;
       this.recovery.delete(t);
       for (const f2 of this.events.giveUp(t)) this.pushNews({ kind: "confirmed", ...f2 });
-    }
-    const c = this.lostCheck;
-    if (c && nowMs >= c.dueMs) {
-      this.lostCheck = null;
-      this.answerLost((seq, s) => !precedes(seq, c.nextSeq) && s.carriedMs < c.welcomedMs, nowMs);
     }
     if (this.status === "syncing") {
       const started = this.syncStartedMs ??= nowMs;

@@ -22,7 +22,7 @@ use common::seeded::{run_seeds, seeds, violations, RSS_BOUND_MIB};
 use impact_client::netsim::Link;
 use impact_client_sim::load::{self, Behaviour, Faults, LoadConfig};
 use impact_client_sim::timing::Timing;
-use impact_protocol::{Encoding, WorldId};
+use impact_protocol::{Encoding, Epoch, WorldId};
 use std::collections::{BTreeMap, BTreeSet};
 use std::process::Command;
 use std::time::Duration;
@@ -102,13 +102,33 @@ fn recording(path: &std::path::Path) -> (String, BTreeMap<u32, String>) {
 }
 
 /// The primary's recording joined with the `log` entries a tap heard (from whichever server
-/// owned the world: the standby's after a takeover), checked on the way: ticks in both are the
-/// same entry, the ticks follow each other without a gap, and no (client, seq) is logged twice.
-/// Returns the joined file's path.
-fn join_log(primary: &std::path::Path, heard: BTreeMap<u32, String>, wrong: &mut Vec<String>) -> std::path::PathBuf {
+/// owned the world: the standby's after a takeover), checked on the way: every version heard of
+/// a tick is the same entry, ticks in both are the same entry, the ticks follow each other
+/// without a gap, and no (client, seq) is logged twice. A killed primary's file may end with
+/// ticks it wrote (the file is flushed first) but died before publishing: past the last tick it
+/// was heard publishing, a tick only its successor published is the world's, and replaces the
+/// file's (counted in `unpublished`). Returns the joined file's path.
+fn join_log(
+    primary: &std::path::Path,
+    heard: BTreeMap<u32, Vec<(Option<Epoch>, String)>>,
+    unpublished: &mut u32,
+    wrong: &mut Vec<String>,
+) -> std::path::PathBuf {
     let (header, mut ticks) = recording(primary);
-    for (t, line) in heard {
+    let first_owner = heard.values().flatten().map(|(e, _)| *e).min();
+    let from_primary = |versions: &[(Option<Epoch>, String)]| versions.iter().any(|(e, _)| Some(*e) == first_owner);
+    let last_from_primary = heard.iter().filter(|(_, v)| from_primary(v)).map(|(t, _)| *t).max();
+    for (t, versions) in heard {
+        let line = versions[0].1.clone();
+        if versions.iter().any(|(_, l)| *l != line) {
+            let owners: Vec<_> = versions.iter().map(|(e, _)| e.map(|e| e.0)).collect();
+            wrong.push(format!("tick {t} was published differently by the owners of epochs {owners:?}"));
+        }
         match ticks.get(&t) {
+            Some(had) if *had != line && !from_primary(&versions) && last_from_primary.is_some_and(|l| t > l) => {
+                *unpublished += 1;
+                ticks.insert(t, line);
+            }
             Some(had) if *had != line => wrong.push(format!("tick {t} was recorded and published differently")),
             Some(_) => {}
             None => {
@@ -208,7 +228,11 @@ fn deployment_run(seed: u64) -> Result<String, String> {
     if heard.is_empty() {
         wrong.push("the log tap heard nothing".into());
     }
-    let joined = join_log(&rec_p, heard, &mut wrong);
+    let mut unpublished = 0;
+    let joined = join_log(&rec_p, heard, &mut unpublished, &mut wrong);
+    if unpublished > 0 && outages.failover.is_none() {
+        wrong.push(format!("the primary recorded {unpublished} ticks it never published, and was not killed"));
+    }
     let replayed = replay(&joined);
     if !replayed.contains("every recorded state hash reproduced") {
         wrong.push(format!("the input log did not replay:\n{replayed}"));
@@ -216,8 +240,10 @@ fn deployment_run(seed: u64) -> Result<String, String> {
     for f in [&rec_p, &joined] {
         let _ = std::fs::remove_file(f);
     }
-    let summary =
-        format!("{plan}\n{report}\nserver rss {rss:.0} MiB; replay: {}", replayed.lines().last().unwrap_or(""));
+    let summary = format!(
+        "{plan}\n{report}\nserver rss {rss:.0} MiB; replay: {}; the killed primary's unpublished ticks: {unpublished}",
+        replayed.lines().last().unwrap_or("")
+    );
     if wrong.is_empty() {
         Ok(summary)
     } else {
@@ -275,8 +301,9 @@ fn replay(recording: &std::path::Path) -> String {
     }
 }
 
-/// What the log tap heard of `impact/v1/arena/log`, by tick, as the recording's lines.
-type Heard = std::sync::Arc<std::sync::Mutex<BTreeMap<u32, String>>>;
+/// What the log tap heard of `impact/v1/arena/log`, by tick, as the recording's lines: every
+/// version, with the owner epoch that published it.
+type Heard = std::sync::Arc<std::sync::Mutex<BTreeMap<u32, Vec<(Option<Epoch>, String)>>>>;
 
 /// The log tap: a peer session, linked to each server directly as the standby is (so a router
 /// restart does not cut it off; the log is published with `block`), and its subscriber.
@@ -290,7 +317,12 @@ fn log_tap(router_at: &str) -> anyhow::Result<(zenoh::Session, zenoh::pubsub::Su
         .callback(move |sample| {
             if let Ok(impact_protocol::ServerMessage::Log(l)) = impact_client_sim::net::decode_server(&sample) {
                 let line = serde_json::to_string(&l).unwrap_or_default();
-                into.lock().unwrap_or_else(|e| e.into_inner()).insert(l.tick.0, line);
+                let epoch = impact_client::transport::epoch_of(&sample);
+                let mut heard = into.lock().unwrap_or_else(|e| e.into_inner());
+                let versions = heard.entry(l.tick.0).or_default();
+                if !versions.contains(&(epoch, line.clone())) {
+                    versions.push((epoch, line));
+                }
             }
         })
         .wait()
@@ -316,6 +348,9 @@ fn deployment_violations(r: &impact_client_sim::report::Report, wrong: &mut Vec<
     ));
     wrong.extend(short(r.returns_full_frame, r.returns_drawing, "returning clients got no full state frame"));
     wrong.extend(short(r.returns_resumed, r.returns, "returning clients had no input accepted after"));
+    if r.returns_resumed < r.returns {
+        wrong.extend(r.unresumed.iter().map(|u| format!("    {u}")));
+    }
 }
 
 #[test]

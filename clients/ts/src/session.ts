@@ -120,7 +120,11 @@ export class Session {
   private nextProbe = 1;
   private syncStartedMs: number | null = null;
   private fullAskedMs: number | null = null;
-  private lostCheck: { welcomedMs: number; dueMs: number; nextSeq: number } | null = null;
+  /** After a second welcome: the inputs it left unaccepted, answered lost once something sent
+   * after it is answered (its probe's pong, or a later input's ack or reject). */
+  private lostCheck: { welcomedMs: number; nextSeq: number; probe: number } | null = null;
+  /** After a restored link: the server's present then, as estimated; see `publishedAt`. */
+  private pathCheck: number | null = null;
   /** The newest tick the server named, and when: run on at the full rate for `linkRestored`. */
   private newestNamed: { tick: number; atMs: number } | null = null;
   /** The event view's ticks in doubt: since when, and whether the transport was given it. */
@@ -156,6 +160,7 @@ export class Session {
         if (msg.client === me) this.welcomed(msg, nowMs);
         return;
       case "pong":
+        if (msg.client === me && this.lostCheck?.probe === msg.id) this.answeredAfter(this.lostCheck.welcomedMs, nowMs);
         if (msg.client !== me || this.status !== "syncing" || !this.probe || this.probe.id !== msg.id) return;
         this.samples.push({ rttMs: nowMs - this.probe.atMs, tick: msg.server_tick, atMs: nowMs });
         this.probe = null;
@@ -179,7 +184,10 @@ export class Session {
           this.stats.acksRecovered++;
           this.answered(seq, s, { kind: "ack_lost" }, nowMs);
         }
-        if (sent) this.lostBefore(msg.seq, msg.accepted_before, sent.atMs, nowMs);
+        if (sent) {
+          this.lostBefore(msg.seq, msg.accepted_before, sent.atMs, nowMs);
+          this.answeredAfter(sent.atMs, nowMs);
+        }
         return;
       }
       case "reject": {
@@ -194,6 +202,7 @@ export class Session {
             this.clock.backOff(msg.tick, sent.view, msg.newest_tick);
           }
           this.answered(seq, sent, { kind: "rejected", reason: msg.reason }, nowMs);
+          this.answeredAfter(sent.atMs, nowMs);
         } else if (msg.reason !== "unknown_entity" && msg.reason !== "not_owner") this.stats.unmatchedAnswers++;
         return;
       }
@@ -209,6 +218,8 @@ export class Session {
         this.pushNews({ kind: "corrected", batch: msg });
         return;
       case "confirmed": {
+        // Published as the tick left the server's rollback window.
+        if (this.welcome) this.publishedAt(msg.tick + this.welcome.window_ticks);
         for (const f of this.events.confirm(msg)) this.pushNews({ kind: "confirmed", ...f });
         const doubtful = this.events.doubtful();
         for (const t of this.recovery.keys()) if (!doubtful.includes(t)) this.recovery.delete(t);
@@ -240,7 +251,10 @@ export class Session {
   }
 
   /** The link to the server was lost and is back (the gateway's `link_restored`, or a
-   * reconnect): ticks before the server's present are not compared with the view. */
+   * reconnect): ticks before the server's present are not compared with the view. The client's
+   * link being back does not mean the server's is (each side of a restarted router reconnects in
+   * its own time): the ticks before the server's present when it published the first message
+   * heard since are not compared either. */
   linkRestored(nowMs: number): void {
     this.stats.linksRestored++;
     const MARGIN_TICKS = 8;
@@ -248,7 +262,20 @@ export class Session {
     const runOn = this.newestNamed ? this.newestNamed.tick + ((nowMs - this.newestNamed.atMs) / 1000) * hz : null;
     const newest = this.events.newest();
     const t = Math.max(this.clock.serverTick(nowMs) ?? -1, newest === null ? -1 : newest + 1, runOn === null ? -1 : Math.floor(runOn));
-    if (t >= 0) this.events.lostBefore(t + MARGIN_TICKS);
+    if (t >= 0) {
+      this.events.lostBefore(t + MARGIN_TICKS);
+      this.pathCheck = t;
+    }
+  }
+
+  /** A message published when the server was at `present` arrived: the first since a restored
+   * link published at or past the estimate then shows the path whole again, and every tick
+   * before `present` may have lost events. */
+  private publishedAt(present: number): void {
+    if (this.pathCheck !== null && present >= this.pathCheck) {
+      this.pathCheck = null;
+      this.events.lostBefore(present);
+    }
   }
 
   /** The remote world's render tick at `nowMs`: the server's present less the delay. */
@@ -308,6 +335,7 @@ export class Session {
   }
 
   private observe(tick: number, nowMs: number): void {
+    this.publishedAt(tick);
     if (this.clock.observe(tick, nowMs)) this.stats.clockResyncs++;
     const hz = this.clock.tickHz ?? 0;
     const n = this.newestNamed;
@@ -323,16 +351,29 @@ export class Session {
     this.outbox.resumeFrom(w.next_seq);
     this.resend = this.resend.filter((i) => this.outbox.awaits(i.seq));
     if (this.stats.welcomes > 1) {
-      // Inputs at or above next_seq sent before this welcome and still unanswered a round trip
-      // later never reached the server: answered lost then.
-      const rttS = Math.max((this.clock.lead ?? 0) / Math.max(w.tick_hz, 1), this.stats.syncRttMaxMs / 1000);
-      this.lostCheck = { welcomedMs: nowMs, dueMs: nowMs + (rttS * 2 + 0.1) * 1000, nextSeq: w.next_seq };
+      // Inputs at or above next_seq sent before this welcome may still be on their way, or their
+      // answers held by a stalled path: no length of time tells. Order does: once anything sent
+      // after the welcome is answered (the probe sent now, or a later input), every one still
+      // unanswered and not carried since never reached the server.
+      const probe = this.nextProbe;
+      this.nextProbe = (this.nextProbe + 1) % 2 ** 32;
+      this.push({ type: "ping", client: this.config.client, id: probe });
+      this.lostCheck = { welcomedMs: nowMs, nextSeq: w.next_seq, probe };
     }
     if (this.status === "joining") {
       this.status = "syncing";
       this.syncStartedMs = nowMs;
     }
     this.welcome = w;
+  }
+
+  /** Something first sent at `sentMs` was answered: the check a second welcome left is settled
+   * when that was after the welcome. */
+  private answeredAfter(sentMs: number, nowMs: number): void {
+    const c = this.lostCheck;
+    if (!c || sentMs < c.welcomedMs) return;
+    this.lostCheck = null;
+    this.answerLost((seq, s) => !precedes(seq, c.nextSeq) && s.carriedMs < c.welcomedMs, nowMs);
   }
 
   /** An earlier input within an ack's bits that the server did not accept, carried by no
@@ -451,11 +492,6 @@ export class Session {
       if (nowMs - r.sinceMs < RECOVERY_WAIT_MS) continue;
       this.recovery.delete(t);
       for (const f of this.events.giveUp(t)) this.pushNews({ kind: "confirmed", ...f });
-    }
-    const c = this.lostCheck;
-    if (c && nowMs >= c.dueMs) {
-      this.lostCheck = null;
-      this.answerLost((seq, s) => !precedes(seq, c.nextSeq) && s.carriedMs < c.welcomedMs, nowMs);
     }
     if (this.status === "syncing") {
       const started = (this.syncStartedMs ??= nowMs);

@@ -95,8 +95,11 @@ test("an input the server never accepted is known lost: by a later ack, or after
   assert.equal(s.pendingInputs, 1);
   // The connection drops and comes back: the server accepted nothing at or after a.
   s.receive(welcome(150, a), 700);
-  assert.equal(s.pendingInputs, 1, "not before a round trip");
-  s.pollTransmit(2000);
+  const probe = s.pollTransmit(700);
+  assert.equal(probe?.type, "ping", "a second welcome sends a probe");
+  s.pollTransmit(3700);
+  assert.equal(s.pendingInputs, 1, "no length of silence tells an input lost (a stalled path holds answers)");
+  s.receive({ type: "pong", client: ME, id: (probe as { id: number }).id, server_tick: 340 }, 3800);
   assert.deepEqual(s.takeAnswers().map((x) => [x.seq, x.outcome.kind]), [[a, "lost"]]);
   assert.equal(s.stats.inputsLost, 1);
   assert.equal(s.input([], 2100), c + 1, "numbers go on");
@@ -130,6 +133,19 @@ test("the event view compares confirmed ticks, and leaves out those a lost link 
   s.receive({ type: "confirmed", tick: 113, revision: 0, events: [event(113)] }, 410);
   assert.equal(s.events.unverified, 1, "a tick the lost link passed is taken as it is");
   assert.equal(s.events.mismatched, 1);
+});
+
+test("after a restored link, the ticks before the server's present at its first message since are left uncompared", () => {
+  const s = playing();
+  s.linkRestored(400);
+  // A second on, the first message since: a confirmed batch, published as tick 150 left the
+  // window (at 166). The server's own link came back after the client's.
+  s.receive({ type: "confirmed", tick: 150, revision: 0, events: [event(150)] }, 1400);
+  s.receive({ type: "events", tick: 170, revision: 0, events: [event(170)] }, 1400);
+  s.receive({ type: "confirmed", tick: 160, revision: 0, events: [event(160)] }, 1400);
+  assert.deepEqual([s.events.mismatched, s.events.unverified], [0, 2]);
+  s.receive({ type: "confirmed", tick: 170, revision: 0, events: [event(170)] }, 1410);
+  assert.equal(s.events.matched, 1, "from then on ticks are compared");
 });
 
 test("a confirmation makes every earlier tick final, so a long match holds nothing", () => {
