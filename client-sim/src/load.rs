@@ -282,6 +282,9 @@ struct Client {
     left: Option<Instant>,
     /// Its returns after a dropped session, the latest last.
     returns: Vec<Return>,
+    /// The last `future` reject: the tick the input carried, the newest the server took then,
+    /// and the client's view tick and lead when it came (told when a return never resumed).
+    last_future: Option<String>,
 }
 
 /// Confirmed batches a client keeps the digest of, to see one change.
@@ -882,6 +885,7 @@ fn clients(cfg: &LoadConfig, start: Instant) -> anyhow::Result<Vec<Client>> {
             confirmed: BTreeMap::new(),
             left: None,
             returns: Vec::new(),
+            last_future: None,
         });
     }
     Ok(out)
@@ -1218,6 +1222,16 @@ impl Run<'_> {
                 }
             }
             ServerMessage::Reject(j) if j.client == c.id => {
+                if j.reason == RejectReason::Future {
+                    let clock = c.session.clock();
+                    c.last_future = Some(format!(
+                        "tick {:?}, newest {:?}, view {:?}, lead {:?}",
+                        j.tick.map(|t| t.0),
+                        j.newest_tick.map(|t| t.0),
+                        clock.server_tick(now).map(|t| t.0),
+                        clock.lead()
+                    ));
+                }
                 // An accepted input whose entity went away before its tick was re-simulated is
                 // told so by a second message (PROTOCOL.md); a copy that arrives once its seq
                 // has left the window is refused as a duplicate.
@@ -1509,7 +1523,7 @@ impl Run<'_> {
             r.returns_resumed += u64::from(back.resumed);
             if !back.resumed && r.unresumed.len() < UNEXPECTED_KEPT {
                 r.unresumed.push(format!(
-                "client {} back at {:.3} s after {:.3} s away, welcomed {:?}, inputs after: {} refused (last {:?}), {} lost, {} awaiting",
+                "client {} back at {:.3} s after {:.3} s away, welcomed {:?}, inputs after: {} refused (last {:?}), {} lost, {} awaiting; the last future reject: {}",
                 c.id.0,
                 back.at.saturating_duration_since(self.load_start).as_secs_f64(),
                 back.away.as_secs_f64(),
@@ -1518,6 +1532,7 @@ impl Run<'_> {
                 back.refused.1.map(RejectReason::name),
                 back.lost,
                 c.session.pending_inputs(),
+                c.last_future.as_deref().unwrap_or("none"),
             ));
             }
         }

@@ -136,19 +136,22 @@ impl Clock {
     }
 
     /// A `future` reject of an input stamped `tick` at view tick `view`: at its arrival the
-    /// server accepted ticks up to `newest`, so the lead it carried (`tick - view`) was too much
-    /// by the excess. The lead drops at once to one tick under what would have fitted (a burst of
-    /// such rejects lowers it once, not once each). Without this a client whose lead was raised by
-    /// a delay spike overshoots once the delay falls back, every input is refused, and no ack
-    /// ever comes to lower it (a soak refused 31 % of inputs that way). An excess beyond
-    /// [`RESYNC_TICKS`] is not the lead's fault but the server's tick jumping back: the clock's
-    /// resync corrects that, and lowering the lead too would make the next inputs late.
-    pub fn back_off(&mut self, tick: Tick, view: Tick, newest: Tick) {
-        let excess = tick.0.saturating_sub(newest.0);
-        if excess > RESYNC_TICKS {
+    /// server accepted ticks up to `newest`, `accepted_ahead` past its present (the welcome's
+    /// `input_lead_ticks`), so the lead it carried (`tick - view`) was too much by the excess.
+    /// The lead drops at once to one tick under what would have fitted (a burst of such rejects
+    /// lowers it once, not once each). Without this a client whose lead was raised by a delay
+    /// spike (or by a view that lagged: the server recommends the delay it saw plus what it
+    /// accepts ahead) overshoots once the delay falls back, every input is refused, and no ack
+    /// ever comes to lower it (a soak refused 31 % of inputs that way). A view past the server's
+    /// present at the input's arrival by more than [`RESYNC_TICKS`] is not the lead's fault but
+    /// the server's tick jumping back: the clock's resync corrects that, and lowering the lead
+    /// too would make the next inputs late.
+    pub fn back_off(&mut self, tick: Tick, view: Tick, newest: Tick, accepted_ahead: u32) {
+        let present = newest.0.saturating_sub(accepted_ahead);
+        if view.0 > present.saturating_add(RESYNC_TICKS) || tick <= newest {
             return;
         }
-        let most = f64::from(tick.0.saturating_sub(view.0)) - f64::from(excess) - 1.0;
+        let most = f64::from(newest.0.saturating_sub(view.0)) - 1.0;
         if let Some(lead) = self.lead.as_mut() {
             *lead = lead.min(most.max(0.0));
             self.lead_target = self.lead_target.min(*lead);
@@ -241,19 +244,34 @@ mod tests {
         let (tick, view) = c.stamp(true, t0).unwrap();
         assert_eq!((tick, view), (Tick(121), Tick(100)));
         // The server is at 110 when it arrives and accepts up to 118: a lead of 18 was the most.
-        c.back_off(tick, view, Tick(118));
+        c.back_off(tick, view, Tick(118), 8);
         let (tick, _) = c.stamp(true, t0).unwrap();
         assert_eq!(tick, Tick(117), "lead 18 - 1");
         // The rest of the burst (inputs sent before the first reject came back) lowers it no more.
-        c.back_off(Tick(122), Tick(101), Tick(119));
+        c.back_off(Tick(122), Tick(101), Tick(119), 8);
         assert_eq!(c.stamp(true, t0).unwrap().0, Tick(117));
-        // An excess past the resync bound is the server's tick jumping back, not the lead.
-        c.back_off(Tick(140), Tick(120), Tick(125));
+        // A view past the server's present (117) beyond the resync bound is the server's tick
+        // jumping back, not the lead.
+        c.back_off(Tick(150), Tick(130), Tick(125), 8);
         assert_eq!(c.stamp(true, t0).unwrap().0, Tick(117));
         // An ack recommending the old lead again is followed only by dilation, not a jump.
         c.recommend(21);
         let (tick, _) = c.stamp(true, t0 + Duration::from_millis(100)).unwrap();
         assert!(tick.0 <= 106 + 17 + 1, "{tick:?}");
+    }
+
+    /// A lead far past what the server accepts, with a view that agrees with the server (the
+    /// lead was recommended while the view lagged, after a takeover): lowered however large the
+    /// excess, or every input stays refused and no ack comes to lower it.
+    #[test]
+    fn a_future_reject_far_past_lowers_the_lead_when_the_view_agrees() {
+        let t0 = Instant::now();
+        let mut c = clock(Tick(806), t0);
+        c.recommend(18);
+        let (tick, view) = c.stamp(true, t0).unwrap();
+        // At its arrival the server is at 810 and accepts up to 818: 6 ticks too far.
+        c.back_off(tick, view, Tick(818), 8);
+        assert_eq!(c.stamp(true, t0).unwrap().0, Tick(806 + 11));
     }
 
     /// Drift under the resync bound is followed within a window when every observation agrees,

@@ -846,26 +846,7 @@ impl Session {
                     self.answered_after(made, now);
                 }
             }
-            ServerMessage::Reject(j) if j.client == me => {
-                *self.stats.rejects.entry(j.reason).or_insert(0) += 1;
-                let Some(seq) = j.seq else { return };
-                self.resend.retain(|i| i.seq != seq);
-                match self.outbox.answered(seq) {
-                    Some(sent) => {
-                        if let (RejectReason::Future, Some(t), Some(n), Some(view)) =
-                            (j.reason, j.tick, j.newest_tick, sent.view)
-                        {
-                            self.clock.back_off(t, view, n);
-                        }
-                        self.answered(seq, sent, Outcome::Rejected(j.reason), now);
-                        self.answered_after(sent.at, now);
-                    }
-                    // An accepted input whose entity went away before its tick was re-simulated
-                    // is told so by a second message (PROTOCOL.md): not unmatched.
-                    None if matches!(j.reason, RejectReason::UnknownEntity | RejectReason::NotOwner) => {}
-                    None => self.stats.unmatched_answers += 1,
-                }
-            }
+            ServerMessage::Reject(j) if j.client == me => self.rejected(&j, now),
             ServerMessage::Events(b) => {
                 self.observe(b.tick, now);
                 self.stats.events += b.events.len() as u64;
@@ -972,6 +953,29 @@ impl Session {
             self.sync_started = Some(now);
         }
         self.welcome = Some(w);
+    }
+
+    /// A reject of one of this client's inputs: its answer, and a `future` one lowers the lead.
+    fn rejected(&mut self, j: &impact_protocol::InputReject, now: Instant) {
+        *self.stats.rejects.entry(j.reason).or_insert(0) += 1;
+        let Some(seq) = j.seq else { return };
+        self.resend.retain(|i| i.seq != seq);
+        match self.outbox.answered(seq) {
+            Some(sent) => {
+                if let (RejectReason::Future, Some(t), Some(n), Some(view)) =
+                    (j.reason, j.tick, j.newest_tick, sent.view)
+                {
+                    let ahead = self.welcome.as_ref().map_or(0, |w| w.input_lead_ticks);
+                    self.clock.back_off(t, view, n, ahead);
+                }
+                self.answered(seq, sent, Outcome::Rejected(j.reason), now);
+                self.answered_after(sent.at, now);
+            }
+            // An accepted input whose entity went away before its tick was re-simulated is told
+            // so by a second message (PROTOCOL.md): not unmatched.
+            None if matches!(j.reason, RejectReason::UnknownEntity | RejectReason::NotOwner) => {}
+            None => self.stats.unmatched_answers += 1,
+        }
     }
 
     /// Welcomed again (a reconnect, a takeover): the inputs at or above `next_seq` were never

@@ -68,11 +68,12 @@ var Clock = class {
     return 1 + Math.min(Math.max(this.leadTarget - this.leadNow, -DILATION), DILATION);
   }
   /** A `future` reject of an input stamped `tick` at view `view`, the server's newest allowed
-   * tick `newest`: the lead drops at once to what would have fitted. */
-  backOff(tick, view, newest) {
-    const excess = Math.max(0, tick - newest);
-    if (excess > RESYNC_TICKS || this.leadNow === null) return;
-    const most = Math.max(0, tick - view) - excess - 1;
+   * tick `newest`, `acceptedAhead` past its present (the welcome's `input_lead_ticks`): the lead
+   * drops at once to what would have fitted, however far past it was. A view past the server's
+   * present by more than the resync bound is the server's tick jumping back, not the lead. */
+  backOff(tick, view, newest, acceptedAhead) {
+    if (tick <= newest || view > newest - acceptedAhead + RESYNC_TICKS || this.leadNow === null) return;
+    const most = newest - view - 1;
     this.leadNow = Math.min(this.leadNow, Math.max(most, 0));
     this.leadTarget = Math.min(this.leadTarget, this.leadNow);
   }
@@ -2493,7 +2494,7 @@ var Session = class {
         const sent = this.outbox.answered(seq);
         if (sent) {
           if (msg.reason === "future" && msg.tick !== null && msg.newest_tick !== null && sent.view !== null) {
-            this.clock.backOff(msg.tick, sent.view, msg.newest_tick);
+            this.clock.backOff(msg.tick, sent.view, msg.newest_tick, this.welcome?.input_lead_ticks ?? 0);
           }
           this.answered(seq, sent, { kind: "rejected", reason: msg.reason }, nowMs);
           this.answeredAfter(sent.atMs, nowMs);

@@ -90,11 +90,12 @@ export class Clock {
   }
 
   /** A `future` reject of an input stamped `tick` at view `view`, the server's newest allowed
-   * tick `newest`: the lead drops at once to what would have fitted. */
-  backOff(tick: number, view: number, newest: number): void {
-    const excess = Math.max(0, tick - newest);
-    if (excess > RESYNC_TICKS || this.leadNow === null) return;
-    const most = Math.max(0, tick - view) - excess - 1;
+   * tick `newest`, `acceptedAhead` past its present (the welcome's `input_lead_ticks`): the lead
+   * drops at once to what would have fitted, however far past it was. A view past the server's
+   * present by more than the resync bound is the server's tick jumping back, not the lead. */
+  backOff(tick: number, view: number, newest: number, acceptedAhead: number): void {
+    if (tick <= newest || view > newest - acceptedAhead + RESYNC_TICKS || this.leadNow === null) return;
+    const most = newest - view - 1;
     this.leadNow = Math.min(this.leadNow, Math.max(most, 0));
     this.leadTarget = Math.min(this.leadTarget, this.leadNow);
   }

@@ -199,7 +199,7 @@ export class Session {
         const sent = this.outbox.answered(seq);
         if (sent) {
           if (msg.reason === "future" && msg.tick !== null && msg.newest_tick !== null && sent.view !== null) {
-            this.clock.backOff(msg.tick, sent.view, msg.newest_tick);
+            this.clock.backOff(msg.tick, sent.view, msg.newest_tick, this.welcome?.input_lead_ticks ?? 0);
           }
           this.answered(seq, sent, { kind: "rejected", reason: msg.reason }, nowMs);
           this.answeredAfter(sent.atMs, nowMs);

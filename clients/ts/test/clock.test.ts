@@ -41,12 +41,20 @@ test("a future reject lowers the lead at once", () => {
   c.recommend(21);
   const s = c.stamp(true, 0)!;
   assert.deepEqual(s, { tick: 121, view: 100 });
-  c.backOff(s.tick, s.view, 118);
+  c.backOff(s.tick, s.view, 118, 8);
   assert.equal(c.stamp(true, 0)!.tick, 117, "lead 18 - 1");
-  c.backOff(122, 101, 119);
+  c.backOff(122, 101, 119, 8);
   assert.equal(c.stamp(true, 0)!.tick, 117);
-  c.backOff(140, 120, 125);
-  assert.equal(c.stamp(true, 0)!.tick, 117, "a reject far off is a stall, not the lead");
+  c.backOff(150, 130, 125, 8);
+  assert.equal(c.stamp(true, 0)!.tick, 117, "a view past the server's present is its tick jumping back, not the lead");
+});
+
+test("a future reject far past lowers the lead when the view agrees with the server", () => {
+  const c = at(806, 0);
+  c.recommend(18);
+  const s = c.stamp(true, 0)!;
+  c.backOff(s.tick, s.view, 818, 8); // the server at 810 accepts up to 818: 6 too far
+  assert.equal(c.stamp(true, 0)!.tick, 806 + 11);
 });
 
 test("small drift is followed and jitter is not", () => {
