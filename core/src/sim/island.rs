@@ -41,13 +41,6 @@ pub(crate) struct Islands {
     held_up: Vec<bool>,
 }
 
-/// The direction "down" when `w` sleeps in parts: gravity, when `partial_sleep` is set and
-/// there is gravity.
-fn down(w: &World) -> Option<DVec3> {
-    let g = w.config.gravity;
-    (w.config.partial_sleep && g != DVec3::ZERO).then_some(g)
-}
-
 impl Islands {
     /// Wakes the islands of the sleeping bodies in `seeds` (slots): every sleeping body joined
     /// to one of them through touching sleeping bodies wakes (sleeping in parts: through bodies
@@ -74,7 +67,7 @@ impl Islands {
         if count == 0 {
             return 0;
         }
-        let down = down(w);
+        let down = w.config.sleeps_in_parts();
         dynamic_pairs(w, down, &mut self.pairs, &mut self.below);
         let b = &mut w.bodies;
         // Spread along contacts to a fixpoint; each pass wakes at least one body or ends, so at
@@ -131,7 +124,7 @@ impl Islands {
             return 0;
         }
         // Union-find over the dynamic contacts; the root is the smallest slot (deterministic).
-        let down = down(w);
+        let down = w.config.sleeps_in_parts();
         dynamic_pairs(w, down, &mut self.pairs, &mut self.below);
         self.parent.clear();
         self.parent.extend(0..n as u32);

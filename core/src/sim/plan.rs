@@ -83,7 +83,7 @@ impl Plan {
             gravity: cfg.gravity != glam::DVec3::ZERO,
             rollback: cfg.window_ticks > 0,
             sleep_after_ticks: cfg.sleep_after_ticks,
-            partial_sleep: cfg.partial_sleep && cfg.gravity != glam::DVec3::ZERO,
+            partial_sleep: cfg.sleeps_in_parts().is_some(),
             characters: cfg.classes.props.iter().any(|p| p.character.is_some()),
         }
     }

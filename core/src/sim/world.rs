@@ -192,6 +192,14 @@ pub struct SimConfig {
     pub projectile_class: Option<ClassId>,
 }
 
+impl SimConfig {
+    /// The direction "down" when islands sleep in parts ([`crate::sim::island`]): gravity, when
+    /// `partial_sleep` is set and there is gravity; `None` otherwise.
+    pub fn sleeps_in_parts(&self) -> Option<DVec3> {
+        (self.partial_sleep && self.gravity != DVec3::ZERO).then_some(self.gravity)
+    }
+}
+
 /// Ticks of history a rollback window of `rollback_ms` holds at `tick_hz` (rounded up, so the
 /// window is never shorter than asked).
 pub fn window_ticks(rollback_ms: u32, tick_hz: u32) -> u32 {
