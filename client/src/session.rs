@@ -131,8 +131,6 @@ struct LostCheck {
     welcomed: Instant,
     /// The welcome's `next_seq`.
     next_seq: u32,
-    /// The probe sent with the check: its pong settles it when no input is answered first.
-    probe: u32,
 }
 
 /// How long a tick a message named stands as evidence of the server's present
@@ -157,11 +155,11 @@ pub enum Outcome {
     /// Refused, for this reason (PROTOCOL.md, "Rejects").
     Rejected(RejectReason),
     /// Never reached the server: the welcome after a reconnect or a takeover (`next_seq`) said
-    /// it was not accepted, it was last sent before that welcome, and something sent after the
-    /// welcome was answered while it was not; or an input made after its last copy went was
+    /// it was not accepted, it was last sent before that welcome, and an input made after the
+    /// welcome was acked while it was unanswered; or an input made after its last copy went was
     /// acked, and that ack does not count it accepted (a client's messages arrive in order, and
-    /// are answered in order). Its actions were not applied; send them again as a new input if
-    /// they still matter.
+    /// its accepted inputs are acked in order, after the rejects of their tick). Its actions were
+    /// not applied; send them again as a new input if they still matter.
     Lost,
 }
 
@@ -285,6 +283,9 @@ pub struct SessionStats {
     /// Messages from an older owner of the world than one already heard (a primary that came
     /// back after a standby took over): dropped ([`Session::receive_from`]).
     pub stale_owner: u64,
+    /// Times a newer owner of the world was heard after an older one (a takeover), each taken as
+    /// a lost link ([`Session::receive_from`]).
+    pub owner_changes: u64,
     /// Messages for another client, or of a kind a client does not use: skipped.
     pub skipped: u64,
     /// Full state frames asked for after a gap.
@@ -382,8 +383,8 @@ pub struct Session {
     /// message published at or past it was published after the link came back, and every tick
     /// before its present may have lost events (see [`Session::published_at`]).
     path_check: Option<Tick>,
-    /// After a second welcome: which inputs it left unaccepted, answered lost once something sent
-    /// after it is answered.
+    /// After a second welcome: which inputs it left unaccepted, answered lost once an input made
+    /// after it is acked.
     lost_check: Option<LostCheck>,
     /// The freshest evidence of the server's tick: a tick a message named and when it came,
     /// the one that run on at the full rate puts the server furthest (a message that came late
@@ -718,11 +719,20 @@ impl Session {
     /// heard is dropped and counted ([`SessionStats::stale_owner`]): after a failover, the
     /// primary that stood still may publish for a moment before it hears it was replaced.
     /// `None` (a message with no epoch) is taken as [`Session::receive`] takes it.
+    ///
+    /// A newer owner than one heard before (a takeover) is taken as a lost link
+    /// ([`Session::link_restored`]): what the old owner published as it died may or may not have
+    /// arrived, and the new owner corrects from what it heard, not from what this client holds,
+    /// so the ticks before its present are taken from the confirmed stream as they come.
     pub fn receive_from(&mut self, epoch: Option<Epoch>, msg: ServerMessage, now: Instant) {
         if let Some(e) = epoch {
             if e < self.epoch {
                 self.stats.stale_owner += 1;
                 return;
+            }
+            if e > self.epoch && self.epoch > Epoch(0) {
+                self.stats.owner_changes += 1;
+                self.link_restored(now);
             }
             self.epoch = e;
         }
@@ -802,9 +812,6 @@ impl Session {
         match msg {
             ServerMessage::Welcome(w) if w.client == me => self.welcomed(w, now),
             ServerMessage::Pong(p) if p.client == me => {
-                if let Some(c) = self.lost_check.filter(|c| c.probe == p.id) {
-                    self.answered_after(c.welcomed, now);
-                }
                 let Some((id, sent)) = self.probe else { return };
                 if id != p.id || self.status != Status::Syncing {
                     return;
@@ -843,7 +850,7 @@ impl Session {
                 }
                 if let Some(made) = made {
                     self.lost_before(&a, made, now);
-                    self.answered_after(made, now);
+                    self.acked_after(made, now);
                 }
             }
             ServerMessage::Reject(j) if j.client == me => self.rejected(&j, now),
@@ -969,7 +976,6 @@ impl Session {
                     self.clock.back_off(t, view, n, ahead);
                 }
                 self.answered(seq, sent, Outcome::Rejected(j.reason), now);
-                self.answered_after(sent.at, now);
             }
             // An accepted input whose entity went away before its tick was re-simulated is told
             // so by a second message (PROTOCOL.md): not unmatched.
@@ -981,16 +987,15 @@ impl Session {
     /// Welcomed again (a reconnect, a takeover): the inputs at or above `next_seq` were never
     /// accepted. Those sent before this welcome may still be on their way, or their answers may
     /// (a path that stalls after the welcome holds them for seconds), so no length of time tells.
-    /// Order does: the server gets a client's messages in order and answers them in order on its
-    /// `ack` key, so once anything sent after the welcome is answered (a later input's ack or
-    /// reject, or the pong to the probe sent now), every input sent before it that is still
-    /// unanswered, and not carried again since, never reached the server. It is answered
-    /// [`Outcome::Lost`] then ([`Session::answered_after`]), so none is silently gone.
+    /// Order does: the server takes a client's messages in order and acks the inputs it accepted
+    /// in that order on the `ack` key, each tick's acks after its rejects. So once an input made
+    /// after the welcome is acked, every input sent before it that is still unanswered, and not
+    /// carried again since, never reached the server (its ack or reject would have come first).
+    /// It is answered [`Outcome::Lost`] then ([`Session::acked_after`]), so none is silently gone.
+    /// (Not a reject nor a pong: those go out at once, and may pass the acks of earlier inputs,
+    /// which wait for the end of their tick.)
     fn lost_at_welcome(&mut self, w: &Welcome, now: Instant) {
-        let probe = self.next_probe;
-        self.next_probe = self.next_probe.wrapping_add(1);
-        self.push(ClientMessage::Ping(TimePing { client: self.cfg.client, id: probe }));
-        self.lost_check = Some(LostCheck { welcomed: now, next_seq: w.next_seq, probe });
+        self.lost_check = Some(LostCheck { welcomed: now, next_seq: w.next_seq });
     }
 
     /// An ack of an input made at `made`: an earlier input within its `accepted_before` bits
@@ -1018,9 +1023,9 @@ impl Session {
         }
     }
 
-    /// Something first sent at `sent` was answered: the check [`Session::lost_at_welcome`] left
-    /// is settled when that was after the welcome.
-    fn answered_after(&mut self, sent: Instant, now: Instant) {
+    /// An input first sent at `sent` was acked: the check [`Session::lost_at_welcome`] left is
+    /// settled when that was after the welcome.
+    fn acked_after(&mut self, sent: Instant, now: Instant) {
         let Some(c) = self.lost_check.filter(|c| sent >= c.welcomed) else { return };
         self.lost_check = None;
         self.answer_lost(|seq: u32, s: &Sent| !precedes(seq, c.next_seq) && s.carried < c.welcomed, now);
@@ -1194,12 +1199,31 @@ mod tests {
         assert_eq!((s.stats().unmatched_answers, s.epoch()), (3, Epoch(2)));
     }
 
+    /// A takeover: what the old owner published as it died may not have arrived, and the new
+    /// owner corrects from what it heard, so the ticks before its present are not compared; the
+    /// first owner heard is no change.
+    #[test]
+    fn a_new_owner_leaves_the_ticks_before_it_uncompared() {
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig::new(ClientId(7)));
+        s.receive_from(Some(Epoch(1)), welcome(0), t0);
+        s.receive_from(Some(Epoch(1)), ServerMessage::Events(batch(101)), t0);
+        assert_eq!(s.stats().owner_changes, 0);
+        let t = t0 + Duration::from_millis(500);
+        s.receive_from(Some(Epoch(2)), ServerMessage::Events(batch(150)), t);
+        assert_eq!(s.stats().owner_changes, 1);
+        // Tick 120's events went out from the dying primary and never came.
+        s.receive_from(Some(Epoch(2)), ServerMessage::Confirmed(batch(120)), t);
+        assert_eq!((s.events().mismatched, s.events().unverified), (0, 2), "101 and 120");
+        s.receive_from(Some(Epoch(2)), ServerMessage::Confirmed(batch(150)), t);
+        assert_eq!(s.events().matched, 1);
+    }
+
     /// Welcomed again after a reconnect: an input sent before the welcome that the server never
-    /// accepted (at or above next_seq) is answered as lost once something sent after the welcome
-    /// is answered (here the probe the welcome sent), however long that takes: a path that stalls
-    /// after the welcome holds the answers for seconds, and a refusal it held is an answer, not a
-    /// loss. One accepted before (below next_seq) is not lost; one sent after the welcome keeps
-    /// waiting for its answer.
+    /// accepted (at or above next_seq) is answered as lost once an input made after the welcome
+    /// is acked, however long that takes: a path that stalls after the welcome holds the answers
+    /// for seconds, and a refusal it held is an answer, not a loss. One accepted before (below
+    /// next_seq) is not lost.
     #[test]
     fn inputs_lost_with_the_link_are_answered_as_lost() {
         let t0 = Instant::now();
@@ -1216,14 +1240,12 @@ mod tests {
         t += Duration::from_secs(1);
         s.receive(welcome(seqs[0] + 1), t);
         let after = s.input(walk(), t).unwrap();
-        let probe = std::iter::from_fn(|| s.poll_transmit(t))
-            .find_map(|m| if let ClientMessage::Ping(p) = m { Some(p.id) } else { None })
-            .expect("a welcome again sends a probe");
+        while s.poll_transmit(t).is_some() {}
         // The path stalls: nothing comes for 3 s, and that alone loses nothing.
         t += Duration::from_secs(3);
         while s.poll_transmit(t).is_some() {}
         assert!(s.take_answers().next().is_none(), "no length of silence tells an input lost");
-        // Then what it held, in order: the refusal of one input, the probe's answer.
+        // Then what it held, in order: the refusal of one input, the ack of the one after.
         let stale = InputReject {
             client: ClientId(7),
             seq: Some(seqs[1]),
@@ -1235,15 +1257,15 @@ mod tests {
         };
         s.receive(ServerMessage::Reject(stale), t);
         assert!(s.awaits(seqs[2]), "an answer to an input sent before the welcome settles nothing");
-        s.receive(ServerMessage::Pong(TimePong { client: ClientId(7), id: probe, server_tick: Tick(300) }), t);
+        s.receive(ack(after, 300, 4), t);
         let answers: Vec<(u32, Outcome)> = s.take_answers().map(|a| (a.seq, a.outcome)).collect();
-        assert_eq!(answers, vec![(seqs[1], Outcome::Rejected(RejectReason::Stale)), (seqs[2], Outcome::Lost)]);
-        assert_eq!((s.stats().inputs_lost, s.pending_inputs()), (1, 1), "input {after} still waits");
+        assert_eq!(answers[..2], [(seqs[1], Outcome::Rejected(RejectReason::Stale)), (after, answers[1].1)]);
+        assert_eq!(answers[2..], [(seqs[2], Outcome::Lost)]);
+        assert_eq!((s.stats().inputs_lost, s.pending_inputs()), (1, 0));
     }
 
     /// After a welcome again, the ack of an input made after it settles every input made before
-    /// it, as the probe's answer would: those further back than the ack's `accepted_before`
-    /// reaches (64 seqs) too.
+    /// it: those further back than the ack's `accepted_before` reaches (64 seqs) too.
     #[test]
     fn an_ack_after_a_welcome_again_tells_the_inputs_before_it_lost() {
         let t0 = Instant::now();
@@ -1429,7 +1451,6 @@ mod tests {
         // Reconnected: the server accepted up to 5.
         s.receive(welcome(6), t);
         s.input(walk(), t).unwrap();
-        assert!(matches!(s.poll_transmit(t), Some(ClientMessage::Ping(_))), "the welcome's probe first");
         assert_eq!(seqs(s.poll_transmit(t).unwrap()), [6, 7]);
         // A server that remembers more than the client sent: the client's seqs jump past it.
         s.receive(welcome(20), t);

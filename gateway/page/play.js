@@ -2421,8 +2421,8 @@ var Session = class {
   nextProbe = 1;
   syncStartedMs = null;
   fullAskedMs = null;
-  /** After a second welcome: the inputs it left unaccepted, answered lost once something sent
-   * after it is answered (its probe's pong, or a later input's ack or reject). */
+  /** After a second welcome: the inputs it left unaccepted, answered lost once an input made
+   * after it is acked. */
   lostCheck = null;
   /** After a restored link: the server's present then, as estimated; see `publishedAt`. */
   pathCheck = null;
@@ -2455,7 +2455,6 @@ var Session = class {
         if (msg.client === me) this.welcomed(msg, nowMs);
         return;
       case "pong":
-        if (msg.client === me && this.lostCheck?.probe === msg.id) this.answeredAfter(this.lostCheck.welcomedMs, nowMs);
         if (msg.client !== me || this.status !== "syncing" || !this.probe || this.probe.id !== msg.id) return;
         this.samples.push({ rttMs: nowMs - this.probe.atMs, tick: msg.server_tick, atMs: nowMs });
         this.probe = null;
@@ -2481,7 +2480,7 @@ var Session = class {
         }
         if (sent) {
           this.lostBefore(msg.seq, msg.accepted_before, sent.atMs, nowMs);
-          this.answeredAfter(sent.atMs, nowMs);
+          this.ackedAfter(sent.atMs, nowMs);
         }
         return;
       }
@@ -2497,7 +2496,6 @@ var Session = class {
             this.clock.backOff(msg.tick, sent.view, msg.newest_tick, this.welcome?.input_lead_ticks ?? 0);
           }
           this.answered(seq, sent, { kind: "rejected", reason: msg.reason }, nowMs);
-          this.answeredAfter(sent.atMs, nowMs);
         } else if (msg.reason !== "unknown_entity" && msg.reason !== "not_owner") this.stats.unmatchedAnswers++;
         return;
       }
@@ -2636,10 +2634,7 @@ var Session = class {
     this.outbox.resumeFrom(w.next_seq);
     this.resend = this.resend.filter((i) => this.outbox.awaits(i.seq));
     if (this.stats.welcomes > 1) {
-      const probe = this.nextProbe;
-      this.nextProbe = (this.nextProbe + 1) % 2 ** 32;
-      this.push({ type: "ping", client: this.config.client, id: probe });
-      this.lostCheck = { welcomedMs: nowMs, nextSeq: w.next_seq, probe };
+      this.lostCheck = { welcomedMs: nowMs, nextSeq: w.next_seq };
     }
     if (this.status === "joining") {
       this.status = "syncing";
@@ -2647,9 +2642,9 @@ var Session = class {
     }
     this.welcome = w;
   }
-  /** Something first sent at `sentMs` was answered: the check a second welcome left is settled
-   * when that was after the welcome. */
-  answeredAfter(sentMs, nowMs) {
+  /** An input first sent at `sentMs` was acked: the check a second welcome left is settled when
+   * that was after the welcome. */
+  ackedAfter(sentMs, nowMs) {
     const c = this.lostCheck;
     if (!c || sentMs < c.welcomedMs) return;
     this.lostCheck = null;

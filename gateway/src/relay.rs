@@ -5,7 +5,9 @@
 //! Fencing (PROTOCOL.md, "Failover"): every sample the server publishes carries its owner
 //! epoch. The gateway keeps the newest epoch heard per world and drops a sample of an older one
 //! (a primary that stalled past its lease and resumed), as the Rust client does, so a browser
-//! never sees two owners.
+//! never sees two owners. A player that hears a newer owner than it heard before (a takeover)
+//! is told `link_restored` first, as the Rust client takes it: what the old owner published as
+//! it died may not have arrived.
 
 use crate::auth::Player;
 use crate::outbox::{Kind, Mailbox};
@@ -166,8 +168,10 @@ impl Relay {
         }
         let mut subscribers = Vec::new();
         let answered = Arc::new(AtomicBool::new(false));
+        // The newest owner this player heard.
+        let heard = Arc::new(AtomicU64::new(0));
         for (key, kind) in wanted {
-            let (mailbox, floor) = (mailbox.clone(), floor.clone());
+            let (mailbox, floor, heard) = (mailbox.clone(), floor.clone(), heard.clone());
             let answers = (key == keys::CLIENT_ACK.key(w, c)).then(|| answered.clone());
             let sub = self
                 .session
@@ -178,6 +182,10 @@ impl Relay {
                         if floor.fetch_max(e.0, Relaxed) > e.0 {
                             mailbox.count_stale_owner();
                             return;
+                        }
+                        let before = heard.fetch_max(e.0, Relaxed);
+                        if before != 0 && before < e.0 {
+                            mailbox.deliver(Kind::Kept, crate::wire::encode_notice(&crate::wire::Notice::LinkRestored));
                         }
                     }
                     if let Some(a) = &answers {

@@ -245,6 +245,47 @@ fn the_gateway_asks_again_for_a_welcome_that_does_not_come() {
     gw.stop().expect("the gateway stops");
 }
 
+/// A takeover seen through the gateway: a player that hears a newer owner than it heard before
+/// is told `link_restored` before the new owner's first message (what the old owner published as
+/// it died may not have arrived; `@impact/client` then leaves the ticks before it uncompared, as
+/// the Rust client does), and a message of the older owner is dropped.
+#[test]
+fn a_new_owner_reaches_a_player_as_a_restored_link() {
+    use impact_protocol::Epoch;
+    let host = common::SilentServer::start();
+    let session =
+        open_session(std::slice::from_ref(&host.endpoint), None, None, Mode::Peer).expect("the gateway's session");
+    let config =
+        Config { auth: Authenticator { users: Some(Users::parse(USERS).unwrap()), secret: None }, ..Config::default() };
+    let gw = start(Gateway::new(config, session), "127.0.0.1:0", 2).expect("the gateway starts");
+    let mut alice = Ws::connect(&gw);
+    alice.send(&hello("alice", "alice-secret", 1));
+    assert!(alice.ready(WAIT).is_some(), "ready");
+    // The kind of each message within a short wait: a notice's or a server message's type.
+    let kinds = |ws: &mut Ws| {
+        let mut out = Vec::new();
+        while let Got::Msg(b) = ws.next(Duration::from_millis(700)) {
+            let v = rmp_serde::from_slice::<serde_json::Value>(&b).unwrap_or_default();
+            out.push(v["type"].as_str().unwrap_or("?").to_string());
+        }
+        out
+    };
+    // The presence comes after the player's subscriptions: once it is heard, they are in place.
+    let end = Instant::now() + WAIT;
+    while host.presences() == 0 && Instant::now() < end {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    host.welcome_as(ClientId(1), Some(Epoch(1)));
+    assert_eq!(kinds(&mut alice), ["welcome"], "the first owner heard is no change");
+    host.welcome_as(ClientId(1), Some(Epoch(2)));
+    assert_eq!(kinds(&mut alice), ["link_restored", "welcome"]);
+    host.welcome_as(ClientId(1), Some(Epoch(1)));
+    host.welcome_as(ClientId(1), Some(Epoch(2)));
+    assert_eq!(kinds(&mut alice), ["welcome"], "the old owner's message is dropped, the owner's taken");
+    assert_eq!(gw.gateway.counters.snapshot().stale_owner, 1);
+    gw.stop().expect("the gateway stops");
+}
+
 /// Every refusal is a close with its code and reason.
 #[test]
 fn refusals_close_with_their_reason() {

@@ -120,9 +120,9 @@ export class Session {
   private nextProbe = 1;
   private syncStartedMs: number | null = null;
   private fullAskedMs: number | null = null;
-  /** After a second welcome: the inputs it left unaccepted, answered lost once something sent
-   * after it is answered (its probe's pong, or a later input's ack or reject). */
-  private lostCheck: { welcomedMs: number; nextSeq: number; probe: number } | null = null;
+  /** After a second welcome: the inputs it left unaccepted, answered lost once an input made
+   * after it is acked. */
+  private lostCheck: { welcomedMs: number; nextSeq: number } | null = null;
   /** After a restored link: the server's present then, as estimated; see `publishedAt`. */
   private pathCheck: number | null = null;
   /** The newest tick the server named, and when: run on at the full rate for `linkRestored`. */
@@ -160,7 +160,6 @@ export class Session {
         if (msg.client === me) this.welcomed(msg, nowMs);
         return;
       case "pong":
-        if (msg.client === me && this.lostCheck?.probe === msg.id) this.answeredAfter(this.lostCheck.welcomedMs, nowMs);
         if (msg.client !== me || this.status !== "syncing" || !this.probe || this.probe.id !== msg.id) return;
         this.samples.push({ rttMs: nowMs - this.probe.atMs, tick: msg.server_tick, atMs: nowMs });
         this.probe = null;
@@ -186,7 +185,7 @@ export class Session {
         }
         if (sent) {
           this.lostBefore(msg.seq, msg.accepted_before, sent.atMs, nowMs);
-          this.answeredAfter(sent.atMs, nowMs);
+          this.ackedAfter(sent.atMs, nowMs);
         }
         return;
       }
@@ -202,7 +201,6 @@ export class Session {
             this.clock.backOff(msg.tick, sent.view, msg.newest_tick, this.welcome?.input_lead_ticks ?? 0);
           }
           this.answered(seq, sent, { kind: "rejected", reason: msg.reason }, nowMs);
-          this.answeredAfter(sent.atMs, nowMs);
         } else if (msg.reason !== "unknown_entity" && msg.reason !== "not_owner") this.stats.unmatchedAnswers++;
         return;
       }
@@ -352,13 +350,10 @@ export class Session {
     this.resend = this.resend.filter((i) => this.outbox.awaits(i.seq));
     if (this.stats.welcomes > 1) {
       // Inputs at or above next_seq sent before this welcome may still be on their way, or their
-      // answers held by a stalled path: no length of time tells. Order does: once anything sent
-      // after the welcome is answered (the probe sent now, or a later input), every one still
-      // unanswered and not carried since never reached the server.
-      const probe = this.nextProbe;
-      this.nextProbe = (this.nextProbe + 1) % 2 ** 32;
-      this.push({ type: "ping", client: this.config.client, id: probe });
-      this.lostCheck = { welcomedMs: nowMs, nextSeq: w.next_seq, probe };
+      // answers held by a stalled path: no length of time tells. Order does: once an input made
+      // after the welcome is acked (acks go out in order, each tick's after its rejects), every
+      // one still unanswered and not carried since never reached the server.
+      this.lostCheck = { welcomedMs: nowMs, nextSeq: w.next_seq };
     }
     if (this.status === "joining") {
       this.status = "syncing";
@@ -367,9 +362,9 @@ export class Session {
     this.welcome = w;
   }
 
-  /** Something first sent at `sentMs` was answered: the check a second welcome left is settled
-   * when that was after the welcome. */
-  private answeredAfter(sentMs: number, nowMs: number): void {
+  /** An input first sent at `sentMs` was acked: the check a second welcome left is settled when
+   * that was after the welcome. */
+  private ackedAfter(sentMs: number, nowMs: number): void {
     const c = this.lostCheck;
     if (!c || sentMs < c.welcomedMs) return;
     this.lostCheck = null;

@@ -200,6 +200,11 @@ impl SilentServer {
 
     /// Welcomes `client` at last (no avatar, tick 100).
     pub fn welcome(&self, client: ClientId) {
+        self.welcome_as(client, None);
+    }
+
+    /// Welcomes `client` as the world's owner at `epoch` (the sample's attachment).
+    pub fn welcome_as(&self, client: ClientId, epoch: Option<impact_protocol::Epoch>) {
         let welcome = ServerMessage::Welcome(impact_protocol::Welcome {
             client,
             avatar: None,
@@ -212,10 +217,13 @@ impl SilentServer {
             scene_hash: 0,
         });
         let bytes = encode(&welcome, Encoding::MsgPack).unwrap();
-        self.host
+        let put = self
+            .host
             .put(keys::CLIENT_ACK.key(&self.world, Some(client)), bytes)
-            .encoding(Encoding::MsgPack.zenoh_tag())
-            .wait()
-            .unwrap();
+            .encoding(Encoding::MsgPack.zenoh_tag());
+        match epoch {
+            Some(e) => put.attachment(e.attachment().to_vec()).wait().unwrap(),
+            None => put.wait().unwrap(),
+        }
     }
 }
