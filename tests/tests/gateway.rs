@@ -217,13 +217,9 @@ fn a_browser_player_plays_through_the_gateway() {
     assert_eq!(alice.closed(WAIT).map(|c| c.0), Some(1001), "going_away");
 }
 
-/// A welcome that does not come (lost on its way, or a presence the server never heard) is asked
-/// for again: the gateway withdraws and declares its player's presence, as the Rust client's
-/// transport does, and stops once the welcome came. The "server" is a bare Zenoh peer
-/// (`common::SilentServer`) that answers none of the declarations until told.
-#[test]
-fn the_gateway_asks_again_for_a_welcome_that_does_not_come() {
-    use impact_client::transport::WELCOME_WAIT;
+/// A bare Zenoh peer standing in for the server (`common::SilentServer`), a gateway linked to
+/// it, and alice connected and ready as client 1 (nobody has welcomed her).
+fn alice_before_a_silent_server() -> (common::SilentServer, Running, Ws) {
     let host = common::SilentServer::start();
     let session =
         open_session(std::slice::from_ref(&host.endpoint), None, None, Mode::Peer).expect("the gateway's session");
@@ -233,6 +229,17 @@ fn the_gateway_asks_again_for_a_welcome_that_does_not_come() {
     let mut alice = Ws::connect(&gw);
     alice.send(&hello("alice", "alice-secret", 1));
     assert!(alice.ready(WAIT).is_some(), "ready");
+    (host, gw, alice)
+}
+
+/// A welcome that does not come (lost on its way, or a presence the server never heard) is asked
+/// for again: the gateway withdraws and declares its player's presence, as the Rust client's
+/// transport does, and stops once the welcome came. The "server" is a bare Zenoh peer
+/// (`common::SilentServer`) that answers none of the declarations until told.
+#[test]
+fn the_gateway_asks_again_for_a_welcome_that_does_not_come() {
+    use impact_client::transport::WELCOME_WAIT;
+    let (host, gw, mut alice) = alice_before_a_silent_server();
     std::thread::sleep(WELCOME_WAIT + Duration::from_millis(700));
     let declared = host.presences();
     assert!(declared >= 2, "the presence was declared {declared} times");
@@ -252,15 +259,7 @@ fn the_gateway_asks_again_for_a_welcome_that_does_not_come() {
 #[test]
 fn a_new_owner_reaches_a_player_as_a_restored_link() {
     use impact_protocol::Epoch;
-    let host = common::SilentServer::start();
-    let session =
-        open_session(std::slice::from_ref(&host.endpoint), None, None, Mode::Peer).expect("the gateway's session");
-    let config =
-        Config { auth: Authenticator { users: Some(Users::parse(USERS).unwrap()), secret: None }, ..Config::default() };
-    let gw = start(Gateway::new(config, session), "127.0.0.1:0", 2).expect("the gateway starts");
-    let mut alice = Ws::connect(&gw);
-    alice.send(&hello("alice", "alice-secret", 1));
-    assert!(alice.ready(WAIT).is_some(), "ready");
+    let (host, gw, mut alice) = alice_before_a_silent_server();
     // The kind of each message within a short wait: a notice's or a server message's type.
     let kinds = |ws: &mut Ws| {
         let mut out = Vec::new();
