@@ -287,6 +287,10 @@ struct Client {
     last_future: Option<String>,
 }
 
+/// Messages each session's delay line holds at most, up and down.
+const UP_LINE: usize = 1 << 20;
+const DOWN_LINE: usize = 1 << 21;
+
 /// Confirmed batches a client keeps the digest of, to see one change.
 const CONFIRMED_KEPT: u32 = 2048;
 
@@ -1024,6 +1028,9 @@ impl Run<'_> {
             let want = self.cfg.faults.dropped(s, since);
             if want && !wiring.closed[s] {
                 wiring.close_session(s);
+                // What was on its way either way goes with the connection: a message held by a
+                // partition does not come out of a new session later.
+                (self.up[s], self.down[s]) = (DelayLine::new(UP_LINE), DelayLine::new(DOWN_LINE));
                 *link = false;
                 self.r.session_drops += 1;
                 for k in (0..self.clients.len()).filter(|k| wiring.session_of(*k) == s) {
@@ -1073,8 +1080,8 @@ impl Run<'_> {
             retired: Vec::new(),
             clients,
             rng: Rng::new(cfg.seed),
-            up: (0..sessions).map(|_| DelayLine::new(1 << 20)).collect(),
-            down: (0..sessions).map(|_| DelayLine::new(1 << 21)).collect(),
+            up: (0..sessions).map(|_| DelayLine::new(UP_LINE)).collect(),
+            down: (0..sessions).map(|_| DelayLine::new(DOWN_LINE)).collect(),
             latency: Histogram::new_with_bounds(1, 60_000_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?,
             depth: Histogram::new_with_bounds(1, 100_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?,
             server_ticks: Histogram::new_with_bounds(1, 3_600_000_000, 3).map_err(|e| anyhow::anyhow!("{e}"))?,
@@ -1452,8 +1459,8 @@ impl Run<'_> {
             let old = std::mem::replace(&mut c.session, new_session(cfg, c.id));
             self.retired.push((c.game, old));
         }
-        self.up = (0..self.up.len()).map(|_| DelayLine::new(1 << 20)).collect();
-        self.down = (0..self.down.len()).map(|_| DelayLine::new(1 << 21)).collect();
+        self.up = (0..self.up.len()).map(|_| DelayLine::new(UP_LINE)).collect();
+        self.down = (0..self.down.len()).map(|_| DelayLine::new(DOWN_LINE)).collect();
         self.checks.clear();
         let rules = scene_rules(cfg, &next, &wiring.sessions[0], &self.clients)?;
         predict(rules.as_ref(), &mut self.clients)?;
