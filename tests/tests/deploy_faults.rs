@@ -29,10 +29,12 @@ use std::time::Duration;
 use zenoh::Wait;
 
 /// The deployment's seeds CI runs: router restarts in 1, 2, 4, 5, 7, 8, failovers in 2, 4, 6, 8;
-/// and the long run's first two failures: 18 (clients whose grace ran out just before the
-/// primary was killed come back to the standby) and 22 (clients that leave before their first
-/// welcome reached them).
-const DEPLOY_SEEDS: [u64; 10] = [1, 2, 3, 4, 5, 6, 7, 8, 18, 22];
+/// and failures of the long runs: 18 (clients whose grace ran out just before the primary was
+/// killed come back to the standby), 22 (clients that leave before their first welcome reached
+/// them), 76 (a session dropped just before the router restarted: its clients came back while
+/// the server itself was cut off), 251 (an input told lost while a stalled path held its
+/// reject) and 315 (a partition's backlog sent through a session dropped since).
+const DEPLOY_SEEDS: [u64; 13] = [1, 2, 3, 4, 5, 6, 7, 8, 18, 22, 76, 251, 315];
 
 /// What the deployment's processes do to themselves in one seed: the router restarted (when
 /// after the start, for how long) and the primary killed (when), each drawn from the seed.

@@ -108,6 +108,12 @@ pub fn reachable(zs: &zenoh::Session) -> bool {
     info.routers_zid().wait().next().is_some() || info.peers_zid().wait().next().is_some()
 }
 
+/// Whether the session has a live link to a router (the way clients reach a server deployed
+/// behind routers; its direct peers, a standby or a tap, carry no client's presence).
+pub fn routed(zs: &zenoh::Session) -> bool {
+    zs.info().routers_zid().wait().next().is_some()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

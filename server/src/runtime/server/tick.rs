@@ -10,7 +10,7 @@ use super::{
 use crate::rollback::{RollbackConfig, Session};
 use crate::runtime::egress::Out;
 use crate::runtime::metrics::WorldMetrics;
-use crate::runtime::owner::{reachable, ANNOUNCE_EVERY, HOLD_REACHABLE, HOLD_UNREACHABLE};
+use crate::runtime::owner::{reachable, routed, ANNOUNCE_EVERY, HOLD_REACHABLE, HOLD_UNREACHABLE};
 use crate::runtime::state::{Capture, StateCounters};
 use crate::runtime::thread_clock::{ThreadClock, ThreadTimes};
 use crate::runtime::timing::LeadEstimator;
@@ -34,6 +34,11 @@ pub(super) struct TickLoop {
     pub(super) egress: SyncSender<Out>,
     pub(super) shared: Arc<Shared>,
     pub(super) clients: BTreeMap<ClientId, ClientState>,
+    /// The process had a router and has none now (see [`TickLoop::own_link`]): no client's
+    /// grace runs out meanwhile.
+    pub(super) cut_off: bool,
+    /// A router was ever linked (a server clients reach through routers).
+    pub(super) routed: bool,
     pub(super) summary: Summary,
     /// This second's tick durations, ms (the stats message carries them).
     pub(super) tick_times: Vec<f64>,
@@ -127,6 +132,8 @@ impl TickLoop {
             acks: Vec::new(),
             earlier: Published::default(),
             recent: Default::default(),
+            cut_off: false,
+            routed: false,
         }
     }
 
@@ -228,6 +235,7 @@ impl TickLoop {
             if self.primary.is_some() && last_announce.is_none_or(|t| t.elapsed() >= ANNOUNCE_EVERY) {
                 last_announce = Some(Instant::now());
                 self.announce();
+                self.own_link(routed(zs));
             }
             // Deadline schedule. Behind by more than 4 ticks: drop the backlog and start a new
             // schedule from now (catching up by running ticks back to back would only make the
@@ -473,7 +481,7 @@ impl TickLoop {
             .filter(|(_, s)| !s.present && s.leave_at.is_some_and(|t| t <= now.0))
             .map(|(c, _)| *c)
             .collect();
-        if self.primary.is_none() {
+        if self.primary.is_none() || self.cut_off {
             return;
         }
         for c in leaving {
@@ -484,6 +492,27 @@ impl TickLoop {
                 }
             }
         }
+    }
+
+    /// The process's own link to a router (`up`), looked at four times a second, once it has had
+    /// one. While it has none (a restarted router), it cannot hear a client come back, so no
+    /// client's grace runs out; once it has one again, every client still away gets a whole
+    /// grace period from then: a client whose session dropped just before the router went (its
+    /// token gone from the server's view) and came back while the server itself was cut off
+    /// keeps its avatar, as one back within the grace period does. A server no router ever
+    /// linked (clients as its peers) is never cut off.
+    fn own_link(&mut self, up: bool) {
+        self.routed |= up;
+        if !self.routed {
+            return;
+        }
+        if up && self.cut_off {
+            let back = self.session.now().0 + self.opts.grace_ticks;
+            for s in self.clients.values_mut().filter(|s| !s.present && s.leave_at.is_some()) {
+                s.leave_at = Some(back);
+            }
+        }
+        self.cut_off = !up;
     }
 
     /// Queues a server action for the present tick, and for the admitted log.
