@@ -33,8 +33,9 @@ use zenoh::Wait;
 /// killed come back to the standby), 22 (clients that leave before their first welcome reached
 /// them), 76 (a session dropped just before the router restarted: its clients came back while
 /// the server itself was cut off), 251 (an input told lost while a stalled path held its
-/// reject) and 315 (a partition's backlog sent through a session dropped since).
-const DEPLOY_SEEDS: [u64; 13] = [1, 2, 3, 4, 5, 6, 7, 8, 18, 22, 76, 251, 315];
+/// reject), 315 (a partition's backlog sent through a session dropped since) and 982 (a standby
+/// that took over while the router was down).
+const DEPLOY_SEEDS: [u64; 14] = [1, 2, 3, 4, 5, 6, 7, 8, 18, 22, 76, 251, 315, 982];
 
 /// What the deployment's processes do to themselves in one seed: the router restarted (when
 /// after the start, for how long) and the primary killed (when), each drawn from the seed.

@@ -231,8 +231,7 @@ impl TickLoop {
         let mut pending = Unconfirmed::default();
         let mut primary_up = false;
         // When the primary's token went, and when this process last reached nobody itself.
-        let mut down: Option<Instant> = None;
-        let mut unreachable_at: Option<Instant> = None;
+        let (mut down, mut unreachable_at): (Option<Instant>, Option<Instant>) = (None, None);
         let mut asked: Option<Instant> = None;
         let mut refused: Option<String> = None;
         let mut lost_seen = 0;
@@ -249,6 +248,7 @@ impl TickLoop {
                 return false;
             }
             self.presence(control);
+            self.watch_own_link(zs);
             let lost = f.lost.load(Ordering::Relaxed);
             if lost != lost_seen {
                 lost_seen = lost;

@@ -39,6 +39,8 @@ pub(super) struct TickLoop {
     pub(super) cut_off: bool,
     /// A router was ever linked (a server clients reach through routers).
     pub(super) routed: bool,
+    /// When the router link was last looked at.
+    pub(super) link_checked: Option<Instant>,
     pub(super) summary: Summary,
     /// This second's tick durations, ms (the stats message carries them).
     pub(super) tick_times: Vec<f64>,
@@ -134,6 +136,7 @@ impl TickLoop {
             recent: Default::default(),
             cut_off: false,
             routed: false,
+            link_checked: None,
         }
     }
 
@@ -235,7 +238,7 @@ impl TickLoop {
             if self.primary.is_some() && last_announce.is_none_or(|t| t.elapsed() >= ANNOUNCE_EVERY) {
                 last_announce = Some(Instant::now());
                 self.announce();
-                self.own_link(routed(zs));
+                self.watch_own_link(zs);
             }
             // Deadline schedule. Behind by more than 4 ticks: drop the backlog and start a new
             // schedule from now (catching up by running ticks back to back would only make the
@@ -491,6 +494,15 @@ impl TickLoop {
                     self.submit_system(SystemAction::Remove { entity });
                 }
             }
+        }
+    }
+
+    /// [`TickLoop::own_link`], four times a second; a standby watches it while it follows, so
+    /// one that takes over while the router is down starts cut off.
+    pub(super) fn watch_own_link(&mut self, zs: &zenoh::Session) {
+        if self.link_checked.is_none_or(|t| t.elapsed() >= ANNOUNCE_EVERY) {
+            self.link_checked = Some(Instant::now());
+            self.own_link(routed(zs));
         }
     }
 
