@@ -240,7 +240,7 @@ fn signal(pid: u32, stop: bool) {
 }
 
 enum Inbound {
-    Msg(usize, ServerMessage, Option<impact_protocol::Epoch>),
+    Msg(usize, ServerMessage, Option<impact_protocol::Stamp>),
     Malformed(usize),
     Stats(impact_protocol::ServerStats),
     /// A `query/confirmed` reply for client `k`, and the end of its answer.
@@ -687,7 +687,7 @@ impl Wiring {
                         frames.fetch_add(1, Relaxed);
                     }
                     let item = match crate::net::decode_server(&sample) {
-                        Ok(msg) => Inbound::Msg(k, msg, impact_client::transport::epoch_of(&sample)),
+                        Ok(msg) => Inbound::Msg(k, msg, impact_client::transport::stamp_of(&sample)),
                         Err(_) => Inbound::Malformed(k),
                     };
                     let mut q = inbox.lock().unwrap_or_else(|e| e.into_inner());
@@ -1129,7 +1129,7 @@ impl Run<'_> {
             while let Some(m) = self.down[line].pop_due(now) {
                 match m {
                     Inbound::Stats(s) => self.on_stats(s, now),
-                    Inbound::Msg(k, msg, epoch) => self.on_message(k, msg, epoch, now),
+                    Inbound::Msg(k, msg, stamp) => self.on_message(k, msg, stamp, now),
                     Inbound::Malformed(k) => self.clients[k].session.malformed(),
                     Inbound::Recovered(k, b) => self.clients[k].session.recovered(b),
                     Inbound::RecoveryEnded(k, t) => self.clients[k].session.recovery_ended(t),
@@ -1191,10 +1191,10 @@ impl Run<'_> {
     /// What the load test checks about a message, then the session takes it. A message from an
     /// older owner than one heard (a primary that came back after a failover) is the session's
     /// to drop and count, not the test's to check.
-    fn on_message(&mut self, k: usize, msg: ServerMessage, epoch: Option<impact_protocol::Epoch>, now: Instant) {
+    fn on_message(&mut self, k: usize, msg: ServerMessage, stamp: Option<impact_protocol::Stamp>, now: Instant) {
         let (r, c) = (&mut self.r, &mut self.clients[k]);
-        if epoch.is_some_and(|e| e < c.session.epoch()) {
-            c.session.receive_from(epoch, msg, now);
+        if stamp.is_some_and(|s| s.epoch < c.session.epoch()) {
+            c.session.receive_from(stamp, msg, now);
             return;
         }
         match &msg {
@@ -1202,8 +1202,9 @@ impl Run<'_> {
                 if let Some(back) = c.returns.last_mut().filter(|b| b.welcomed.is_none()) {
                     back.welcomed = Some(w.avatar.is_some() && w.avatar == back.avatar);
                 }
-                // Welcomed again (a reconnect, a takeover): the seqs below next_seq were
-                // accepted, their acks lost with the old link.
+                // Welcomed again (a reconnect, a takeover): the server answered every seq below
+                // next_seq it heard (the highest accepted; answers lost with the old link); the
+                // session learns which from the next ack.
                 let told: Vec<u32> =
                     c.owed.keys().copied().filter(|&seq| impact_protocol::serial::precedes(seq, w.next_seq)).collect();
                 for seq in told {
@@ -1290,7 +1291,7 @@ impl Run<'_> {
             }
             _ => {}
         }
-        c.session.receive_from(epoch, msg, now);
+        c.session.receive_from(stamp, msg, now);
         if !c.welcomed && c.session.avatar().is_some() {
             c.welcomed = true;
             r.clients_welcomed += 1;
@@ -1528,19 +1529,36 @@ impl Run<'_> {
             r.returns_drawing += u64::from(c.game);
             r.returns_full_frame += u64::from(c.game && back.full_frame);
             r.returns_resumed += u64::from(back.resumed);
+            // Who, when, how long away and how welcomed: the start of each line told.
+            let who = || {
+                format!(
+                    "client {} back at {:.3} s after {:.3} s away, welcomed {:?}",
+                    c.id.0,
+                    back.at.saturating_duration_since(self.load_start).as_secs_f64(),
+                    back.away.as_secs_f64(),
+                    back.welcomed
+                )
+            };
+            if c.game && !back.full_frame && r.unframed.len() < UNEXPECTED_KEPT {
+                let s = c.session.stats();
+                r.unframed.push(format!(
+                    "{}, epoch {}; its session: {} state frames, {} full frames asked",
+                    who(),
+                    c.session.epoch().0,
+                    s.state_frames,
+                    s.full_frames_asked
+                ));
+            }
             if !back.resumed && r.unresumed.len() < UNEXPECTED_KEPT {
                 r.unresumed.push(format!(
-                "client {} back at {:.3} s after {:.3} s away, welcomed {:?}, inputs after: {} refused (last {:?}), {} lost, {} awaiting; the last future reject: {}",
-                c.id.0,
-                back.at.saturating_duration_since(self.load_start).as_secs_f64(),
-                back.away.as_secs_f64(),
-                back.welcomed,
-                back.refused.0,
-                back.refused.1.map(RejectReason::name),
-                back.lost,
-                c.session.pending_inputs(),
-                c.last_future.as_deref().unwrap_or("none"),
-            ));
+                    "{}, inputs after: {} refused (last {:?}), {} lost, {} awaiting; the last future reject: {}",
+                    who(),
+                    back.refused.0,
+                    back.refused.1.map(RejectReason::name),
+                    back.lost,
+                    c.session.pending_inputs(),
+                    c.last_future.as_deref().unwrap_or("none"),
+                ));
             }
         }
     }
@@ -1569,6 +1587,7 @@ impl Run<'_> {
             r.input_copies_sent += s.copies_sent;
             r.malformed += s.malformed;
             r.stale_owner += s.stale_owner;
+            r.messages_lost += s.messages_lost;
             r.unmatched_answers += s.unmatched_answers;
         }
         r.events_per_s = r.events_received as f64 / secs;

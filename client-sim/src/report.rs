@@ -64,6 +64,9 @@ pub struct Report {
     /// Returning clients none of whose inputs after was accepted (the first
     /// [`UNEXPECTED_KEPT`]), each told.
     pub unresumed: Vec<String>,
+    /// Returning drawing clients no full state frame came to after (the first
+    /// [`UNEXPECTED_KEPT`]), each told.
+    pub unframed: Vec<String>,
     /// Clients whose view of a confirmed tick differed (the first [`UNEXPECTED_KEPT`]), with the
     /// ticks.
     pub views_differed: Vec<String>,
@@ -75,6 +78,10 @@ pub struct Report {
     /// Server messages of an older owner than one the client had heard (a primary that resumed
     /// after its standby took over), dropped.
     pub stale_owner: u64,
+    /// Server messages on the clients' keys that never arrived, known from a skip in a key's
+    /// numbers (`SessionStats::messages_lost`): a skip on a client's events key leaves its ticks
+    /// before it uncompared.
+    pub messages_lost: u64,
     /// Times a Zenoh session of the load generator had its link back after losing it.
     pub links_restored: u64,
     /// Confirmed ticks not compared with a client's view, because its link was lost before them
@@ -371,6 +378,13 @@ impl Report {
                 f,
                 "  owners   {} messages of an older owner dropped (a primary that resumed after a failover)",
                 self.stale_owner
+            )?;
+        }
+        if self.messages_lost > 0 {
+            writeln!(
+                f,
+                "  lost     {} numbered messages never arrived (a skip in a key's numbers)",
+                self.messages_lost
             )?;
         }
         Ok(())

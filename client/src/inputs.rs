@@ -82,15 +82,15 @@ impl Outbox {
 
     /// Numbers go on from `next` if that is further than this outbox's own next number: the
     /// server's `next_seq` after a reconnect (seqs are never reused while it remembers the
-    /// client). Inputs before it awaiting an answer were accepted, their acks lost: forgotten.
-    /// An outbox that numbered nothing yet takes `next` as it is (a client that restarted,
-    /// resuming where the server left it).
+    /// client). Inputs before it still awaiting an answer stay awaited: the server answered
+    /// each or never heard it, and the next ack says which it accepted. An outbox that numbered
+    /// nothing yet takes `next` as it is (a client that restarted, resuming where the server left
+    /// it).
     pub fn resume_from(&mut self, next: u32) {
         let at = if self.numbered { self.key(next) } else { FIRST - 1 + u64::from(next) };
         if at > self.next {
             self.next = at + u64::from(at as u32 == 0);
         }
-        self.pending.retain(|&k, _| k >= at);
     }
 
     /// Remembers input `seq` as sent; forgets the oldest past the capacity.
@@ -188,7 +188,7 @@ mod tests {
             o.sent(s, sent);
         }
         o.resume_from(2);
-        assert!(!o.awaits(1) && o.awaits(2) && o.awaits(3));
+        assert!(o.awaits(1) && o.awaits(2) && o.awaits(3), "still awaited: the next ack tells");
         assert_eq!(o.next_seq(), 4, "a resume from behind does not go back");
         o.resume_from(u32::MAX);
         assert_eq!(o.next_seq(), 5, "nor from before the wrap");

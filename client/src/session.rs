@@ -36,8 +36,8 @@ use impact_protocol::limits::{MAX_ACTIONS_PER_INPUT, MAX_INPUTS_PER_MESSAGE};
 use impact_protocol::serial::precedes;
 use impact_protocol::{
     Action, ClientId, ClientInput, ClientMessage, CollisionEvent, CorrectionBatch, EntityId, Epoch, EventBatch,
-    FullFrameRequest, InputBatch, RayResult, RejectReason, SceneDescription, ServerMessage, Tick, TimePing, Welcome,
-    WorldClosed,
+    FullFrameRequest, InputBatch, RayResult, RejectReason, SceneDescription, ServerMessage, Stamp, Tick, TimePing,
+    Welcome, WorldClosed,
 };
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::time::{Duration, Instant};
@@ -124,6 +124,49 @@ pub fn accepted_before(seq: u32, bits: u64) -> impl Iterator<Item = u32> {
     (0..64u32).filter(move |k| bits & (1 << k) != 0).map(move |k| seq.wrapping_sub(k + 1)).filter(|&s| s != 0)
 }
 
+/// The client's own keys, each numbering its messages apart ([`Stamp::number`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum OwnKey {
+    /// `client/{id}/ack`: answers, welcomes, pongs, ray results, the closing notice.
+    Ack,
+    /// `client/{id}/events`: `events`, `corrections` and `confirmed` batches.
+    Events,
+    /// `client/{id}/state`.
+    State,
+}
+
+impl OwnKey {
+    const COUNT: usize = 3;
+
+    /// The key a message of this kind comes on.
+    fn of(msg: &ServerMessage) -> OwnKey {
+        match msg {
+            ServerMessage::Events(_) | ServerMessage::Corrections(_) | ServerMessage::Confirmed(_) => OwnKey::Events,
+            ServerMessage::State(_) => OwnKey::State,
+            _ => OwnKey::Ack,
+        }
+    }
+}
+
+/// The numbers of one key's messages as they arrive ([`Stamp::number`]). Each owner counts
+/// anew: start again ([`KeyNumbers::default`]) with a newer epoch.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct KeyNumbers {
+    last: Option<u64>,
+}
+
+impl KeyNumbers {
+    /// Message `n` arrived: how many before it were lost since the last one heard (or, for the
+    /// first one heard, since the owner's first on the key: a subscription the server's messages
+    /// did not reach at once). None when `n` follows it, and none when `n` is not past it (the
+    /// server's count started again: it forgot the key).
+    pub fn heard(&mut self, n: u64) -> u64 {
+        let lost = n.saturating_sub(self.last.unwrap_or(0)).saturating_sub(1);
+        self.last = Some(n);
+        lost
+    }
+}
+
 /// See [`Session::lost_at_welcome`].
 #[derive(Clone, Copy, Debug)]
 struct LostCheck {
@@ -159,7 +202,9 @@ pub enum Outcome {
     /// welcome was acked while it was unanswered; or an input made after its last copy went was
     /// acked, and that ack does not count it accepted (a client's messages arrive in order, and
     /// its accepted inputs are acked in order, after the rejects of their tick). Its actions were
-    /// not applied; send them again as a new input if they still matter.
+    /// not applied; send them again as a new input if they still matter. (One below a second
+    /// welcome's `next_seq`, sent before the link dropped, may have been refused instead, its
+    /// reject lost with the link: not applied either way.)
     Lost,
 }
 
@@ -247,7 +292,8 @@ pub struct SessionStats {
     pub inputs_sent: u64,
     /// Inputs acknowledged (those whose own ack was lost and a later one told included).
     pub inputs_acked: u64,
-    /// Of them, inputs whose ack was lost and a later ack told accepted (`accepted_before`).
+    /// Of them, inputs whose ack was lost and a later ack told accepted (`accepted_before`), or
+    /// a welcome's `next_seq`.
     pub acks_recovered: u64,
     /// Acked inputs that arrived after their tick had begun (`margin_ticks < 0`): the server
     /// rolled back for each.
@@ -286,6 +332,10 @@ pub struct SessionStats {
     /// Times a newer owner of the world was heard after an older one (a takeover), each taken as
     /// a lost link ([`Session::receive_from`]).
     pub owner_changes: u64,
+    /// Messages the server numbered on the client's keys that never arrived (a skip in a key's
+    /// numbers: dropped on a congested path, or by a transport's full inbox). One on the events key
+    /// is taken as a lost link ([`Session::receive_from`]).
+    pub messages_lost: u64,
     /// Messages for another client, or of a kind a client does not use: skipped.
     pub skipped: u64,
     /// Full state frames asked for after a gap.
@@ -379,6 +429,9 @@ pub struct Session {
     heard: Option<Instant>,
     /// The newest owner epoch heard (see [`Session::receive_from`]).
     epoch: Epoch,
+    /// The number of the last message heard on each of the client's keys ([`OwnKey`]) from the
+    /// owner at `epoch`.
+    numbers: [KeyNumbers; OwnKey::COUNT],
     /// After a restored link: the server's present then, as the session estimated it. The first
     /// message published at or past it was published after the link came back, and every tick
     /// before its present may have lost events (see [`Session::published_at`]).
@@ -427,6 +480,7 @@ impl Session {
             closed: None,
             heard: None,
             epoch: Epoch::default(),
+            numbers: [KeyNumbers::default(); OwnKey::COUNT],
             lost_check: None,
             path_check: None,
             newest_named: None,
@@ -714,27 +768,49 @@ impl Session {
         self.stats.malformed += 1;
     }
 
-    /// A message from the world's owner at `epoch` (the sample's attachment,
-    /// [`Epoch::from_attachment`]) arrived at `now`. One from an older owner than the newest
-    /// heard is dropped and counted ([`SessionStats::stale_owner`]): after a failover, the
-    /// primary that stood still may publish for a moment before it hears it was replaced.
-    /// `None` (a message with no epoch) is taken as [`Session::receive`] takes it.
+    /// A message on one of the client's own keys from the world's owner, stamped `stamp` (the
+    /// sample's attachment, [`Stamp::from_attachment`]), arrived at `now`. One from an older
+    /// owner than the newest heard is dropped and counted ([`SessionStats::stale_owner`]): after a
+    /// failover, the primary that stood still may publish for a moment before it hears it was
+    /// replaced. `None` (a message with no stamp) is taken as [`Session::receive`] takes it.
     ///
     /// A newer owner than one heard before (a takeover) is taken as a lost link
     /// ([`Session::link_restored`]): what the old owner published as it died may or may not have
     /// arrived, and the new owner corrects from what it heard, not from what this client holds,
-    /// so the ticks before its present are taken from the confirmed stream as they come.
-    pub fn receive_from(&mut self, epoch: Option<Epoch>, msg: ServerMessage, now: Instant) {
-        if let Some(e) = epoch {
+    /// so the ticks before its present are taken from the confirmed stream as they come. So is a
+    /// skip in the numbers of the events key's messages ([`SessionStats::messages_lost`]): events
+    /// or corrections lost on the way leave the ticks they were for unverifiable. (Which key a
+    /// message came on follows from its kind, PROTOCOL.md "Key expressions"; a transport hands
+    /// this only what came on the client's own keys.)
+    pub fn receive_from(&mut self, stamp: Option<Stamp>, msg: ServerMessage, now: Instant) {
+        if let Some(Stamp { epoch: e, number }) = stamp {
             if e < self.epoch {
                 self.stats.stale_owner += 1;
                 return;
             }
-            if e > self.epoch && self.epoch > Epoch(0) {
-                self.stats.owner_changes += 1;
-                self.link_restored(now);
+            if e > self.epoch {
+                if self.epoch > Epoch(0) {
+                    self.stats.owner_changes += 1;
+                    self.link_restored(now);
+                }
+                self.numbers = [KeyNumbers::default(); OwnKey::COUNT];
             }
             self.epoch = e;
+            if let Some(n) = number {
+                let key = OwnKey::of(&msg);
+                let lost = self.numbers[key as usize].heard(n);
+                self.stats.messages_lost += lost;
+                if lost > 0 && key == OwnKey::Events {
+                    self.link_restored(now);
+                    if self.path_check.is_none() {
+                        // No estimate of the server's present yet (before the welcome): the
+                        // message itself gives one once taken.
+                        self.receive(msg, now);
+                        self.link_restored(now);
+                        return;
+                    }
+                }
+            }
         }
         self.receive(msg, now);
     }
@@ -943,11 +1019,12 @@ impl Session {
             let cfg = RemoteConfig { delay_s: self.cfg.interpolation_delay_s, ..RemoteConfig::new(w.tick_hz) };
             self.remote = Some(RemoteWorld::new(cfg));
         }
-        // Seqs below the server's next_seq were accepted (their acks were lost with the old
-        // connection): nothing to resend. Ours go on from wherever is further.
+        // Seqs below the server's next_seq: it accepted the one just below, and answered or
+        // never heard the others (answers lost with the old link). None is carried again, so the
+        // next ack's `accepted_before` tells each accepted (`AckLost`) or not (`Lost`). Ours go
+        // on from wherever is further.
         self.outbox.resume_from(w.next_seq);
-        let outbox = &self.outbox;
-        self.resend.retain(|i| outbox.awaits(i.seq));
+        self.resend.retain(|i| !precedes(i.seq, w.next_seq));
         if self.stats.welcomes > 1 {
             self.lost_at_welcome(&w, now);
         }
@@ -1029,6 +1106,13 @@ impl Session {
         let Some(c) = self.lost_check.filter(|c| sent >= c.welcomed) else { return };
         self.lost_check = None;
         self.answer_lost(|seq: u32, s: &Sent| !precedes(seq, c.next_seq) && s.carried < c.welcomed, now);
+        // Below next_seq and further back than the ack's `accepted_before` reaches (64 seqs):
+        // taken as the welcome implies, accepted with the seq just below next_seq, acks lost.
+        for (seq, s) in self.outbox.take_pending(|seq, s| precedes(seq, c.next_seq) && s.carried < c.welcomed) {
+            self.stats.inputs_acked += 1;
+            self.stats.acks_recovered += 1;
+            self.answered(seq, s, Outcome::AckLost, now);
+        }
     }
 
     /// Ends the sync: the soonest answer anchors the clock, the slowest round trip (in ticks,
@@ -1182,19 +1266,19 @@ mod tests {
     fn an_older_owner_is_not_heard_once_a_newer_one_was() {
         let t0 = Instant::now();
         let mut s = Session::new(SessionConfig::new(ClientId(7)));
-        s.receive_from(Some(Epoch(1)), welcome(0), t0);
+        s.receive_from(Some(Epoch(1).into()), welcome(0), t0);
         assert_eq!(s.epoch(), Epoch(1));
         // Acks of no input sent: each is counted as unmatched when it is taken.
-        s.receive_from(Some(Epoch(1)), ack(40, 101, 2), t0);
+        s.receive_from(Some(Epoch(1).into()), ack(40, 101, 2), t0);
         assert_eq!(s.stats().unmatched_answers, 1);
         // The standby took over: its welcome, at epoch 2.
-        s.receive_from(Some(Epoch(2)), welcome(0), t0);
+        s.receive_from(Some(Epoch(2).into()), welcome(0), t0);
         assert_eq!((s.epoch(), s.stats().welcomes), (Epoch(2), 2));
         // The old primary resumed for a moment: nothing of it is taken.
-        s.receive_from(Some(Epoch(1)), ack(41, 102, 2), t0);
-        s.receive_from(Some(Epoch(1)), welcome(9), t0);
+        s.receive_from(Some(Epoch(1).into()), ack(41, 102, 2), t0);
+        s.receive_from(Some(Epoch(1).into()), welcome(9), t0);
         assert_eq!((s.stats().unmatched_answers, s.stats().welcomes, s.stats().stale_owner), (1, 2, 2));
-        s.receive_from(Some(Epoch(2)), ack(42, 103, 2), t0);
+        s.receive_from(Some(Epoch(2).into()), ack(42, 103, 2), t0);
         s.receive_from(None, ack(43, 104, 2), t0);
         assert_eq!((s.stats().unmatched_answers, s.epoch()), (3, Epoch(2)));
     }
@@ -1206,24 +1290,65 @@ mod tests {
     fn a_new_owner_leaves_the_ticks_before_it_uncompared() {
         let t0 = Instant::now();
         let mut s = Session::new(SessionConfig::new(ClientId(7)));
-        s.receive_from(Some(Epoch(1)), welcome(0), t0);
-        s.receive_from(Some(Epoch(1)), ServerMessage::Events(batch(101)), t0);
+        s.receive_from(Some(Epoch(1).into()), welcome(0), t0);
+        s.receive_from(Some(Epoch(1).into()), ServerMessage::Events(batch(101)), t0);
         assert_eq!(s.stats().owner_changes, 0);
         let t = t0 + Duration::from_millis(500);
-        s.receive_from(Some(Epoch(2)), ServerMessage::Events(batch(150)), t);
+        s.receive_from(Some(Epoch(2).into()), ServerMessage::Events(batch(150)), t);
         assert_eq!(s.stats().owner_changes, 1);
         // Tick 120's events went out from the dying primary and never came.
-        s.receive_from(Some(Epoch(2)), ServerMessage::Confirmed(batch(120)), t);
+        s.receive_from(Some(Epoch(2).into()), ServerMessage::Confirmed(batch(120)), t);
         assert_eq!((s.events().mismatched, s.events().unverified), (0, 2), "101 and 120");
-        s.receive_from(Some(Epoch(2)), ServerMessage::Confirmed(batch(150)), t);
+        s.receive_from(Some(Epoch(2).into()), ServerMessage::Confirmed(batch(150)), t);
         assert_eq!(s.events().matched, 1);
+    }
+
+    /// Events lost on the way with no link lost (a congested path dropped them, or a full
+    /// inbox): the skip in the events key's numbers leaves the ticks before it uncompared, where
+    /// the same messages numbered in order would have been compared (and differed). A skip on the
+    /// ack key is counted only; a count started again (a number not past the last) loses nothing.
+    #[test]
+    fn a_skip_in_the_events_numbers_leaves_the_ticks_before_it_uncompared() {
+        let t0 = Instant::now();
+        let on = |n| Some(Stamp { epoch: Epoch(1), number: Some(n) });
+        let run = |skip: u64| {
+            let mut s = Session::new(SessionConfig::new(ClientId(7)));
+            s.receive_from(on(1), welcome(0), t0);
+            s.receive_from(on(1), ServerMessage::Events(batch(101)), t0);
+            s.receive_from(on(2), ServerMessage::Events(batch(102)), t0);
+            s.receive_from(on(3), ServerMessage::Confirmed(batch(101)), t0);
+            s.receive_from(on(4), ServerMessage::Confirmed(batch(102)), t0);
+            // Number 5, tick 103's events, lost on the way (when `skip` is 1).
+            s.receive_from(on(5 + skip), ServerMessage::Events(batch(104)), t0);
+            s.receive_from(on(6 + skip), ServerMessage::Confirmed(batch(103)), t0);
+            s
+        };
+        let (lost, whole) = (run(1), run(0));
+        assert_eq!((whole.stats().messages_lost, whole.events().matched, whole.events().mismatched), (0, 2, 1));
+        assert_eq!((lost.stats().messages_lost, lost.events().matched, lost.events().mismatched), (1, 2, 0));
+        assert!(lost.events().unverified >= 1);
+
+        let mut s = run(1);
+        s.receive_from(on(3), ack(40, 105, 2), t0);
+        assert_eq!((s.stats().messages_lost, s.events().mismatched), (2, 0), "one ack lost: counted");
+        s.receive_from(on(1), ServerMessage::Events(batch(130)), t0);
+        s.receive_from(on(2), ServerMessage::Confirmed(batch(130)), t0);
+        assert_eq!((s.stats().messages_lost, s.events().matched, s.events().mismatched), (2, 3, 0));
+
+        // A subscription the owner's first messages on the key did not reach (a join through a
+        // router): the first heard is not number 1.
+        let mut late = Session::new(SessionConfig::new(ClientId(7)));
+        late.receive_from(on(1), welcome(0), t0);
+        late.receive_from(on(3), ServerMessage::Events(batch(102)), t0);
+        late.receive_from(on(4), ServerMessage::Confirmed(batch(101)), t0);
+        assert_eq!((late.stats().messages_lost, late.events().mismatched, late.events().unverified), (2, 0, 1));
     }
 
     /// Welcomed again after a reconnect: an input sent before the welcome that the server never
     /// accepted (at or above next_seq) is answered as lost once an input made after the welcome
     /// is acked, however long that takes: a path that stalls after the welcome holds the answers
     /// for seconds, and a refusal it held is an answer, not a loss. One accepted before (below
-    /// next_seq) is not lost.
+    /// next_seq) is not lost: that ack's `accepted_before` tells it accepted.
     #[test]
     fn inputs_lost_with_the_link_are_answered_as_lost() {
         let t0 = Instant::now();
@@ -1257,10 +1382,12 @@ mod tests {
         };
         s.receive(ServerMessage::Reject(stale), t);
         assert!(s.awaits(seqs[2]), "an answer to an input sent before the welcome settles nothing");
-        s.receive(ack(after, 300, 4), t);
+        let ServerMessage::Ack(mut a) = ack(after, 300, 4) else { unreachable!() };
+        a.accepted_before = 1 << (after - seqs[0] - 1);
+        s.receive(ServerMessage::Ack(a), t);
         let answers: Vec<(u32, Outcome)> = s.take_answers().map(|a| (a.seq, a.outcome)).collect();
         assert_eq!(answers[..2], [(seqs[1], Outcome::Rejected(RejectReason::Stale)), (after, answers[1].1)]);
-        assert_eq!(answers[2..], [(seqs[2], Outcome::Lost)]);
+        assert_eq!(answers[2..], [(seqs[0], Outcome::AckLost), (seqs[2], Outcome::Lost)]);
         assert_eq!((s.stats().inputs_lost, s.pending_inputs()), (1, 0));
     }
 
@@ -1424,8 +1551,8 @@ mod tests {
     }
 
     /// Each input carries the unanswered ones before it (at most three); an ack removes one from
-    /// the copies; a second welcome after a reconnect resumes the seqs and drops what the server
-    /// accepted.
+    /// the copies; a second welcome after a reconnect resumes the seqs, stops carrying those below
+    /// its `next_seq`, and the next ack answers each of them.
     #[test]
     fn inputs_carry_the_unanswered_ones_and_resume_after_a_reconnect() {
         let t0 = Instant::now();
@@ -1448,10 +1575,23 @@ mod tests {
         s.input(walk(), t).unwrap();
         assert_eq!(seqs(s.poll_transmit(t).unwrap()), [4, 5, 6], "3 was answered; 2 left the copies");
         assert_eq!(s.stats().inputs_acked, 1);
-        // Reconnected: the server accepted up to 5.
+        // Reconnected: the server accepted 5 and nothing after. 1, 2 and 4 still await their
+        // answers (lost with the link), carried no more; the next ack tells.
+        s.take_answers().for_each(drop);
         s.receive(welcome(6), t);
-        s.input(walk(), t).unwrap();
-        assert_eq!(seqs(s.poll_transmit(t).unwrap()), [6, 7]);
+        assert_eq!((s.take_answers().count(), s.pending_inputs()), (0, 5));
+        let t2 = t + Duration::from_millis(10);
+        s.input(walk(), t2).unwrap();
+        assert_eq!(seqs(s.poll_transmit(t2).unwrap()), [6, 7]);
+        // Accepted before 7: 6, 5, 2 and 1; 4 was refused, its reject lost with the link.
+        let ServerMessage::Ack(mut a) = ack(7, 110, 4) else { unreachable!() };
+        a.accepted_before = 0b11_0011;
+        s.receive(ServerMessage::Ack(a), t2);
+        let told: Vec<(u32, Outcome)> = s.take_answers().map(|a| (a.seq, a.outcome)).collect();
+        let (acked, lost_ack) = (Outcome::Accepted { applied_tick: Tick(110), margin_ticks: 0 }, Outcome::AckLost);
+        assert_eq!(told, [(7, acked), (6, lost_ack), (5, lost_ack), (2, lost_ack), (1, lost_ack), (4, Outcome::Lost)]);
+        assert_eq!((s.stats().inputs_acked, s.stats().acks_recovered, s.stats().inputs_lost), (6, 4, 1));
+        assert_eq!(s.pending_inputs(), 0);
         // A server that remembers more than the client sent: the client's seqs jump past it.
         s.receive(welcome(20), t);
         assert_eq!(s.input(walk(), t), Ok(20));

@@ -25,7 +25,7 @@ use crate::session::{Session, Status};
 use ::zenoh::Wait;
 use impact_protocol::limits::MAX_SERVER_MESSAGE_BYTES;
 use impact_protocol::{
-    encode, keys, ClientId, ClientMessage, Encoding, Epoch, EventBatch, SceneDescription, ServerMessage, Tick,
+    encode, keys, ClientId, ClientMessage, Encoding, Epoch, EventBatch, SceneDescription, ServerMessage, Stamp, Tick,
     WorldAnswer, WorldCommand, WorldId,
 };
 use std::path::PathBuf;
@@ -172,7 +172,13 @@ pub fn decode_server(sample: &::zenoh::sample::Sample) -> Result<ServerMessage, 
 
 /// The owner epoch a sample carries as its attachment (PROTOCOL.md, "Failover"), if any.
 pub fn epoch_of(sample: &::zenoh::sample::Sample) -> Option<Epoch> {
-    sample.attachment().and_then(|a| Epoch::from_attachment(&a.to_bytes()))
+    stamp_of(sample).map(|s| s.epoch)
+}
+
+/// The owner epoch and the message's number on its key a sample carries as its attachment
+/// ([`Stamp`]), if any.
+pub fn stamp_of(sample: &::zenoh::sample::Sample) -> Option<Stamp> {
+    sample.attachment().and_then(|a| Stamp::from_attachment(&a.to_bytes()))
 }
 
 /// Where and how to connect.
@@ -227,7 +233,7 @@ impl ConnectOptions {
 // Nearly every item is a message: boxing it would cost an allocation each for the rare others.
 #[allow(clippy::large_enum_variant)]
 enum Inbound {
-    Msg(ServerMessage, Option<Epoch>, Instant),
+    Msg(ServerMessage, Option<Stamp>, Instant),
     Malformed,
     NoScene(String),
     /// A `query/confirmed` reply: a batch the client missed.
@@ -286,7 +292,7 @@ pub fn ask_confirmed(
 fn scene_reply(reply: &::zenoh::query::Reply) -> Inbound {
     match reply.result() {
         Ok(sample) => match decode_server(sample) {
-            Ok(m @ ServerMessage::Scene(_)) => Inbound::Msg(m, epoch_of(sample), Instant::now()),
+            Ok(m @ ServerMessage::Scene(_)) => Inbound::Msg(m, stamp_of(sample), Instant::now()),
             Ok(ServerMessage::QueryError(e)) => Inbound::NoScene(e.detail),
             Ok(_) | Err(_) => Inbound::Malformed,
         },
@@ -515,7 +521,7 @@ impl Connection {
                 .declare_subscriber(key)
                 .callback(move |sample| {
                     let item = match decode_server(&sample) {
-                        Ok(m) => Inbound::Msg(m, epoch_of(&sample), Instant::now()),
+                        Ok(m) => Inbound::Msg(m, stamp_of(&sample), Instant::now()),
                         Err(_) => Inbound::Malformed,
                     };
                     if let Err(TrySendError::Full(_)) = tx.try_send(item) {
@@ -562,7 +568,7 @@ impl Connection {
         }
         while let Ok(item) = self.inbox.try_recv() {
             match item {
-                Inbound::Msg(m, epoch, at) => client.receive_from(epoch, m, at),
+                Inbound::Msg(m, stamp, at) => client.receive_from(stamp, m, at),
                 Inbound::Malformed => client.malformed(),
                 Inbound::NoScene(why) => client.scene_unavailable(why),
                 Inbound::Recovered(b) => client.recovered(b),

@@ -59,12 +59,13 @@ def main():
 
     def decode(sample):
         # After a failover the old primary may publish for a moment: every message carries its
-        # owner's epoch as the attachment (8 bytes, little-endian u64); drop an older one than
-        # any heard (PROTOCOL.md, "Failover").
+        # owner's epoch as the attachment (8 bytes, little-endian u64, then on a published
+        # message 8 more: its number on the key); drop an older one than any heard (PROTOCOL.md,
+        # "Failover").
         if sample.attachment is not None:
             a = sample.attachment.to_bytes()
-            if len(a) == 8:
-                epoch = int.from_bytes(a, "little")
+            if len(a) in (8, 16):
+                epoch = int.from_bytes(a[:8], "little")
                 if epoch < owner["epoch"]:
                     owner["stale"] += 1
                     return None

@@ -2178,11 +2178,13 @@ var Outbox = class _Outbox {
     if (back >= 2 ** 31) back -= U32;
     return this.next - back;
   }
-  /** The welcome's `next_seq`: seqs below it were accepted; ours go on from the further one. */
+  /**
+   * The welcome's `next_seq`: ours go on from the further one. Inputs below it still awaiting an
+   * answer stay awaited: the server answered each or never heard it, and the next ack tells.
+   */
   resumeFrom(next) {
     const at2 = this.numbered ? this.key(next) : FIRST - 1 + next;
     if (at2 > this.next) this.next = at2 + (at2 % U32 === 0 ? 1 : 0);
-    for (const k of [...this.pending.keys()]) if (k < at2) this.pending.delete(k);
   }
   sent(seq, sent) {
     this.pending.set(this.key(seq), sent);
@@ -2632,7 +2634,7 @@ var Session = class {
       this.remote = new RemoteWorld({ ...remoteConfig(w.tick_hz), delayS: this.config.interpolationDelayS });
     }
     this.outbox.resumeFrom(w.next_seq);
-    this.resend = this.resend.filter((i) => this.outbox.awaits(i.seq));
+    this.resend = this.resend.filter((i) => !precedes(i.seq, w.next_seq));
     if (this.stats.welcomes > 1) {
       this.lostCheck = { welcomedMs: nowMs, nextSeq: w.next_seq };
     }
@@ -2649,6 +2651,11 @@ var Session = class {
     if (!c || sentMs < c.welcomedMs) return;
     this.lostCheck = null;
     this.answerLost((seq, s) => !precedes(seq, c.nextSeq) && s.carriedMs < c.welcomedMs, nowMs);
+    for (const [seq, sent] of this.outbox.takePending((q, s) => precedes(q, c.nextSeq) && s.carriedMs < c.welcomedMs)) {
+      this.stats.inputsAcked++;
+      this.stats.acksRecovered++;
+      this.answered(seq, sent, { kind: "ack_lost" }, nowMs);
+    }
   }
   /** An earlier input within an ack's bits that the server did not accept, carried by no
    * message since the acked one was made, never reached it (messages arrive in order). */

@@ -202,6 +202,12 @@ impl Mailbox {
         self.counters.stale_owner.fetch_add(1, Relaxed);
     }
 
+    /// Messages on the player's events key that never reached the gateway (a skip in the key's
+    /// numbers).
+    pub fn count_messages_lost(&self, lost: u64) {
+        self.counters.messages_lost.fetch_add(lost, Relaxed);
+    }
+
     /// A sample that did not decode, dropped.
     pub fn count_malformed(&self) {
         self.counters.malformed_from_server.fetch_add(1, Relaxed);

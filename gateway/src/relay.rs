@@ -7,11 +7,13 @@
 //! (a primary that stalled past its lease and resumed), as the Rust client does, so a browser
 //! never sees two owners. A player that hears a newer owner than it heard before (a takeover)
 //! is told `link_restored` first, as the Rust client takes it: what the old owner published as
-//! it died may not have arrived.
+//! it died may not have arrived. So is a player whose events key skips a message number (events
+//! or corrections dropped on the way to the gateway): the ticks before are not its to compare.
 
 use crate::auth::Player;
 use crate::outbox::{Kind, Mailbox};
-use impact_client::transport::epoch_of;
+use impact_client::session::KeyNumbers;
+use impact_client::transport::stamp_of;
 use impact_protocol::limits::MAX_SERVER_MESSAGE_BYTES;
 use impact_protocol::{keys, ClientId, Encoding, ServerMessage, WorldId};
 use std::collections::BTreeMap;
@@ -173,18 +175,33 @@ impl Relay {
         for (key, kind) in wanted {
             let (mailbox, floor, heard) = (mailbox.clone(), floor.clone(), heard.clone());
             let answers = (key == keys::CLIENT_ACK.key(w, c)).then(|| answered.clone());
+            // The events key's numbers, from the owner heard on it.
+            let numbers = (key == keys::CLIENT_EVENTS.key(w, c)).then(|| Mutex::new((0, KeyNumbers::default())));
             let sub = self
                 .session
                 .declare_subscriber(key)
                 .callback(move |sample| {
-                    if let Some(e) = epoch_of(&sample) {
+                    if let Some(stamp) = stamp_of(&sample) {
+                        let e = stamp.epoch;
                         // An older owner's sample is dropped; a newer owner raises the floor.
                         if floor.fetch_max(e.0, Relaxed) > e.0 {
                             mailbox.count_stale_owner();
                             return;
                         }
                         let before = heard.fetch_max(e.0, Relaxed);
-                        if before != 0 && before < e.0 {
+                        let mut restored = before != 0 && before < e.0;
+                        if let (Some(numbers), Some(n)) = (&numbers, stamp.number) {
+                            let mut numbers = numbers.lock().unwrap_or_else(|p| p.into_inner());
+                            if numbers.0 != e.0 {
+                                *numbers = (e.0, KeyNumbers::default());
+                            }
+                            let lost = numbers.1.heard(n);
+                            if lost > 0 {
+                                mailbox.count_messages_lost(lost);
+                                restored = true;
+                            }
+                        }
+                        if restored {
                             mailbox.deliver(Kind::Kept, crate::wire::encode_notice(&crate::wire::Notice::LinkRestored));
                         }
                     }

@@ -34,6 +34,9 @@ pub struct Counters {
     pub state_dropped: AtomicU64,
     /// Samples of an older owner epoch, dropped.
     pub stale_owner: AtomicU64,
+    /// Messages on players' events keys that never reached the gateway (skips in the keys'
+    /// numbers; each skip tells its player `link_restored`).
+    pub messages_lost: AtomicU64,
     /// Samples from the servers that did not decode, dropped.
     pub malformed_from_server: AtomicU64,
     /// Presences declared again because a player's welcome had not come.
@@ -68,6 +71,8 @@ pub struct Snapshot {
     pub state_dropped: u64,
     /// See [`Counters`].
     pub stale_owner: u64,
+    /// See [`Counters`].
+    pub messages_lost: u64,
     /// See [`Counters`].
     pub malformed_from_server: u64,
     /// See [`Counters`].
@@ -126,6 +131,7 @@ impl Counters {
             bytes_out: self.bytes_out.load(Relaxed),
             state_dropped: self.state_dropped.load(Relaxed),
             stale_owner: self.stale_owner.load(Relaxed),
+            messages_lost: self.messages_lost.load(Relaxed),
             malformed_from_server: self.malformed_from_server.load(Relaxed),
             presence_repeats: self.presence_repeats.load(Relaxed),
             relayed_kept: relay.as_ref().map_or(0, |h| h.len()),

@@ -27,7 +27,7 @@ impl fmt::Display for Tick {
 /// Which ownership of a world a message comes from: a fencing token. A world's first server owns
 /// it at epoch 1; a standby that takes over owns it at one more than the newest epoch it has
 /// seen. Every message a server publishes or replies carries its epoch as the Zenoh attachment
-/// (the 8 bytes of a `u64`, little-endian: [`Epoch::attachment`]), so a server that finds a newer
+/// (the 8 bytes of a `u64`, little-endian, first: [`Stamp`]), so a server that finds a newer
 /// one stops publishing, and a client drops what an older owner still sends (PROTOCOL.md,
 /// "Failover").
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
@@ -49,9 +49,51 @@ impl Epoch {
         self.0.to_le_bytes()
     }
 
-    /// Reads an attachment written by [`Epoch::attachment`] (`None` for any other length).
+    /// Reads the epoch of an attachment written by [`Epoch::attachment`] or [`Stamp::attachment`]
+    /// (`None` for any other length).
     pub fn from_attachment(bytes: &[u8]) -> Option<Epoch> {
-        <[u8; 8]>::try_from(bytes).ok().map(|b| Epoch(u64::from_le_bytes(b)))
+        Stamp::from_attachment(bytes).map(|s| s.epoch)
+    }
+}
+
+/// What a server's message carries as its Zenoh attachment: its owner's [`Epoch`] and, on a
+/// message published on a key (not a query's reply), its number on that key: 1 for the first
+/// message the owner published on the key, one more for each after. A receiver that sees a
+/// number skip knows that messages on the key were lost on the way (PROTOCOL.md, "When things go
+/// wrong"). As bytes: the epoch's 8, then the number's 8 when there is one, both `u64`
+/// little-endian.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Stamp {
+    /// The owner's epoch.
+    pub epoch: Epoch,
+    /// The message's number on its key (`None`: a reply, or a server that does not count).
+    pub number: Option<u64>,
+}
+
+impl Stamp {
+    /// As a Zenoh attachment: 8 bytes, or 16 with a number.
+    pub fn attachment(self) -> Vec<u8> {
+        let mut out = self.epoch.attachment().to_vec();
+        if let Some(n) = self.number {
+            out.extend_from_slice(&n.to_le_bytes());
+        }
+        out
+    }
+
+    /// Reads an attachment of 8 or 16 bytes (`None` for any other length).
+    pub fn from_attachment(bytes: &[u8]) -> Option<Stamp> {
+        let word = |b: &[u8]| <[u8; 8]>::try_from(b).ok().map(u64::from_le_bytes);
+        match bytes.len() {
+            8 => Some(Stamp { epoch: Epoch(word(bytes)?), number: None }),
+            16 => Some(Stamp { epoch: Epoch(word(&bytes[..8])?), number: Some(word(&bytes[8..])?) }),
+            _ => None,
+        }
+    }
+}
+
+impl From<Epoch> for Stamp {
+    fn from(epoch: Epoch) -> Stamp {
+        Stamp { epoch, number: None }
     }
 }
 
@@ -131,5 +173,24 @@ impl From<WorldId> for String {
 impl fmt::Display for WorldId {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(&self.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Epoch, Stamp};
+
+    #[test]
+    fn a_stamp_reads_back_with_and_without_its_number() {
+        let numbered = Stamp { epoch: Epoch(7), number: Some(1 << 40) };
+        assert_eq!(numbered.attachment().len(), 16);
+        assert_eq!(Stamp::from_attachment(&numbered.attachment()), Some(numbered));
+        assert_eq!(Epoch::from_attachment(&numbered.attachment()), Some(Epoch(7)));
+        let bare = Stamp::from(Epoch(3));
+        assert_eq!(bare.attachment(), Epoch(3).attachment().to_vec());
+        assert_eq!(Stamp::from_attachment(&Epoch(3).attachment()), Some(bare));
+        for len in [0, 1, 7, 9, 15, 17, 24] {
+            assert_eq!(Stamp::from_attachment(&vec![1; len]), None, "{len} bytes");
+        }
     }
 }

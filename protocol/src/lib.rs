@@ -40,7 +40,7 @@ pub mod validate;
 pub use codec::{decode, decode_unchecked, encode, input_header, Encoding};
 pub use error::ProtocolError;
 pub use event::{CollisionEvent, EventKey, EventStatus, Phase, Response};
-pub use ids::{ClientId, EntityId, Epoch, Tick, WorldId};
+pub use ids::{ClientId, EntityId, Epoch, Stamp, Tick, WorldId};
 pub use log::{Admitted, Checkpoint, LogTick, LoggedInput, LoggedSystem};
 pub use message::{
     Action, BodyState, ClientInput, ClientMessage, CorrectionBatch, EventBatch, EventHistory, FullFrameRequest,

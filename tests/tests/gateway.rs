@@ -232,6 +232,25 @@ fn alice_before_a_silent_server() -> (common::SilentServer, Running, Ws) {
     (host, gw, alice)
 }
 
+/// The kind of each message within a short wait: a notice's or a server message's type.
+fn kinds(ws: &mut Ws) -> Vec<String> {
+    let mut out = Vec::new();
+    while let Got::Msg(b) = ws.next(Duration::from_millis(700)) {
+        let v = rmp_serde::from_slice::<serde_json::Value>(&b).unwrap_or_default();
+        out.push(v["type"].as_str().unwrap_or("?").to_string());
+    }
+    out
+}
+
+/// Waits for the player's presence: it comes after its subscriptions, so once it is heard they
+/// are in place.
+fn subscribed(host: &common::SilentServer) {
+    let end = Instant::now() + WAIT;
+    while host.presences() == 0 && Instant::now() < end {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
 /// A welcome that does not come (lost on its way, or a presence the server never heard) is asked
 /// for again: the gateway withdraws and declares its player's presence, as the Rust client's
 /// transport does, and stops once the welcome came. The "server" is a bare Zenoh peer
@@ -260,20 +279,7 @@ fn the_gateway_asks_again_for_a_welcome_that_does_not_come() {
 fn a_new_owner_reaches_a_player_as_a_restored_link() {
     use impact_protocol::Epoch;
     let (host, gw, mut alice) = alice_before_a_silent_server();
-    // The kind of each message within a short wait: a notice's or a server message's type.
-    let kinds = |ws: &mut Ws| {
-        let mut out = Vec::new();
-        while let Got::Msg(b) = ws.next(Duration::from_millis(700)) {
-            let v = rmp_serde::from_slice::<serde_json::Value>(&b).unwrap_or_default();
-            out.push(v["type"].as_str().unwrap_or("?").to_string());
-        }
-        out
-    };
-    // The presence comes after the player's subscriptions: once it is heard, they are in place.
-    let end = Instant::now() + WAIT;
-    while host.presences() == 0 && Instant::now() < end {
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    subscribed(&host);
     host.welcome_as(ClientId(1), Some(Epoch(1)));
     assert_eq!(kinds(&mut alice), ["welcome"], "the first owner heard is no change");
     host.welcome_as(ClientId(1), Some(Epoch(2)));
@@ -282,6 +288,30 @@ fn a_new_owner_reaches_a_player_as_a_restored_link() {
     host.welcome_as(ClientId(1), Some(Epoch(2)));
     assert_eq!(kinds(&mut alice), ["welcome"], "the old owner's message is dropped, the owner's taken");
     assert_eq!(gw.gateway.counters.snapshot().stale_owner, 1);
+    gw.stop().expect("the gateway stops");
+}
+
+/// Events dropped on their way to the gateway (a congested path: no link lost, no new owner): a
+/// skip in the numbers of a player's events key tells the player `link_restored` before the
+/// message after the skip, and counts the messages lost; a new owner's count, which starts again,
+/// is a takeover, not a skip.
+#[test]
+fn a_skip_in_a_players_event_numbers_reaches_it_as_a_restored_link() {
+    use impact_protocol::{Epoch, Stamp};
+    let (host, gw, mut alice) = alice_before_a_silent_server();
+    subscribed(&host);
+    let (alice_id, on) = (ClientId(1), |epoch, n| Stamp { epoch: Epoch(epoch), number: Some(n) });
+    host.welcome_as(alice_id, Some(Epoch(1)));
+    host.events(alice_id, 101, on(1, 1));
+    host.events(alice_id, 102, on(1, 2));
+    assert_eq!(kinds(&mut alice), ["welcome", "events", "events"], "numbers in order: nothing lost");
+    host.events(alice_id, 105, on(1, 5));
+    host.events(alice_id, 106, on(1, 6));
+    assert_eq!(kinds(&mut alice), ["link_restored", "events", "events"], "3 and 4 lost");
+    assert_eq!(gw.gateway.counters.snapshot().messages_lost, 2);
+    host.events(alice_id, 120, on(2, 1));
+    assert_eq!(kinds(&mut alice), ["link_restored", "events"], "a takeover, told once");
+    assert_eq!(gw.gateway.counters.snapshot().messages_lost, 2, "a new owner counts anew");
     gw.stop().expect("the gateway stops");
 }
 

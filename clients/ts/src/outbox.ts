@@ -64,11 +64,13 @@ export class Outbox {
     return this.next - back;
   }
 
-  /** The welcome's `next_seq`: seqs below it were accepted; ours go on from the further one. */
+  /**
+   * The welcome's `next_seq`: ours go on from the further one. Inputs below it still awaiting an
+   * answer stay awaited: the server answered each or never heard it, and the next ack tells.
+   */
   resumeFrom(next: number): void {
     const at = this.numbered ? this.key(next) : FIRST - 1 + next;
     if (at > this.next) this.next = at + (at % U32 === 0 ? 1 : 0);
-    for (const k of [...this.pending.keys()]) if (k < at) this.pending.delete(k);
   }
 
   sent(seq: number, sent: Sent): void {

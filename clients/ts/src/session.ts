@@ -346,8 +346,11 @@ export class Session {
     if (!this.remote || this.remote.config.tickHz !== w.tick_hz) {
       this.remote = new RemoteWorld({ ...remoteConfig(w.tick_hz), delayS: this.config.interpolationDelayS });
     }
+    // Seqs below next_seq: the server accepted the one just below and answered or never heard
+    // the others (answers lost with the old link). None is carried again, so the next ack's
+    // accepted_before tells each accepted (ack_lost) or not (lost).
     this.outbox.resumeFrom(w.next_seq);
-    this.resend = this.resend.filter((i) => this.outbox.awaits(i.seq));
+    this.resend = this.resend.filter((i) => !precedes(i.seq, w.next_seq));
     if (this.stats.welcomes > 1) {
       // Inputs at or above next_seq sent before this welcome may still be on their way, or their
       // answers held by a stalled path: no length of time tells. Order does: once an input made
@@ -369,6 +372,13 @@ export class Session {
     if (!c || sentMs < c.welcomedMs) return;
     this.lostCheck = null;
     this.answerLost((seq, s) => !precedes(seq, c.nextSeq) && s.carriedMs < c.welcomedMs, nowMs);
+    // Below next_seq and further back than the ack's bits reach (64 seqs): taken as the welcome
+    // implies, accepted with the seq just below next_seq, acks lost.
+    for (const [seq, sent] of this.outbox.takePending((q, s) => precedes(q, c.nextSeq) && s.carriedMs < c.welcomedMs)) {
+      this.stats.inputsAcked++;
+      this.stats.acksRecovered++;
+      this.answered(seq, sent, { kind: "ack_lost" }, nowMs);
+    }
   }
 
   /** An earlier input within an ack's bits that the server did not accept, carried by no

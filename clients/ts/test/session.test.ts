@@ -105,6 +105,23 @@ test("an input the server never accepted is known lost: by a later ack, or after
   assert.equal(s.stats.inputsLost, 1);
 });
 
+test("inputs below a second welcome's next_seq are answered by the next ack, not forgotten", () => {
+  const s = playing();
+  const a = s.input(walk(1), 260);
+  s.pollTransmit(260);
+  const b = s.input(walk(2), 400);
+  s.pollTransmit(400);
+  // The connection drops with both answers: the server accepted b and refused a.
+  s.receive(welcome(150, b + 1), 700);
+  assert.deepEqual([s.takeAnswers().length, s.pendingInputs], [0, 2], "awaited, carried no more");
+  const c = s.input([], 800);
+  const sent = s.pollTransmit(800);
+  assert.deepEqual(sent?.type === "inputs" ? sent.inputs.map((i) => i.seq) : [], [], "a and b are not carried");
+  s.receive(ack(c, 0b01n), 900);
+  assert.deepEqual(s.takeAnswers().map((x) => [x.seq, x.outcome.kind]), [[c, "accepted"], [b, "ack_lost"], [a, "lost"]]);
+  assert.deepEqual([s.pendingInputs, s.stats.acksRecovered, s.stats.inputsLost], [0, 1, 1]);
+});
+
 const event = (tick: number, toi = 0.5): CollisionEvent => ({
   tick,
   toi,

@@ -80,14 +80,14 @@ impl Owner {
         self.held.store(held, Ordering::SeqCst);
     }
 
-    /// The attachment to publish a message with, or `None` when nothing may be published (held,
-    /// or fenced; counted). A standby's (no epoch yet) go out without one.
-    pub(crate) fn stamp(&self) -> Result<Option<[u8; 8]>, ()> {
+    /// The epoch to publish a message with, or `Err` when nothing may be published (held, or
+    /// fenced; counted). A standby's (no epoch yet) go out without one.
+    pub(crate) fn stamp(&self) -> Result<Option<Epoch>, ()> {
         if self.held.load(Ordering::Relaxed) || self.fenced().is_some() {
             self.withheld.fetch_add(1, Ordering::Relaxed);
             return Err(());
         }
-        Ok(self.epoch().map(Epoch::attachment))
+        Ok(self.epoch())
     }
 
     /// Messages withheld so far.
@@ -123,7 +123,7 @@ mod tests {
     #[test]
     fn the_fence_and_the_hold_withhold_everything() {
         let o = Owner::first();
-        assert_eq!(o.stamp(), Ok(Some(Epoch(1).attachment())));
+        assert_eq!(o.stamp(), Ok(Some(Epoch(1))));
         o.heard(Epoch(1));
         assert_eq!(o.fenced(), None, "its own epoch does not fence it");
         o.hold(true);
@@ -138,7 +138,7 @@ mod tests {
         standby.heard(Epoch(4));
         assert_eq!((standby.stamp(), standby.fenced()), (Ok(None), None), "a follower is never fenced");
         standby.own(standby.newest().next());
-        assert_eq!((standby.epoch(), standby.stamp()), (Some(Epoch(5)), Ok(Some(Epoch(5).attachment()))));
+        assert_eq!((standby.epoch(), standby.stamp()), (Some(Epoch(5)), Ok(Some(Epoch(5)))));
         assert_eq!(Epoch::from_attachment(&Epoch(5).attachment()), Some(Epoch(5)));
         assert_eq!(Epoch::from_attachment(&[1, 2, 3]), None);
     }

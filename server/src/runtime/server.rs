@@ -213,10 +213,21 @@ struct Shared {
     owner: Arc<Owner>,
     rejected_in_callbacks: [AtomicU64; RejectReason::ALL.len()],
     egress_dropped: AtomicU64,
+    /// Of them, messages for a key (not query replies): the egress numbers each key's messages
+    /// past them ([`Out::Put`]'s `dropped_before`).
+    keyed_dropped: AtomicU64,
     /// Set by [`ServerHandle::close`]: the clients are told, with where to go next and why.
     closing: std::sync::Mutex<Option<(Option<WorldId>, String)>>,
     /// Closed for good ([`ServerHandle::close`]): inputs are no longer answered.
     closed: AtomicBool,
+}
+
+impl Shared {
+    /// The egress queue was full for a message on a key.
+    fn dropped_for_key(&self) {
+        self.egress_dropped.fetch_add(1, Ordering::Relaxed);
+        self.keyed_dropped.fetch_add(1, Ordering::Relaxed);
+    }
 }
 
 fn reason_index(r: RejectReason) -> usize {
@@ -226,10 +237,11 @@ fn reason_index(r: RejectReason) -> usize {
 /// Sends a message through the bounded egress queue (the egress thread encodes it); a full queue
 /// drops it and counts.
 fn send(tx: &SyncSender<Out>, shared: &Shared, key: String, msg: ServerMessage, encoding: Encoding) {
+    let dropped_before = shared.keyed_dropped.load(Ordering::Relaxed);
     if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) =
-        tx.try_send(Out::Put { key, msg: Box::new(msg), encoding })
+        tx.try_send(Out::Put { key, msg: Box::new(msg), encoding, dropped_before })
     {
-        shared.egress_dropped.fetch_add(1, Ordering::Relaxed);
+        shared.dropped_for_key();
     }
 }
 

@@ -216,13 +216,21 @@ impl SilentServer {
             next_seq: 0,
             scene_hash: 0,
         });
-        let bytes = encode(&welcome, Encoding::MsgPack).unwrap();
-        let put = self
-            .host
-            .put(keys::CLIENT_ACK.key(&self.world, Some(client)), bytes)
-            .encoding(Encoding::MsgPack.zenoh_tag());
-        match epoch {
-            Some(e) => put.attachment(e.attachment().to_vec()).wait().unwrap(),
+        self.publish(&keys::CLIENT_ACK.key(&self.world, Some(client)), &welcome, epoch.map(Into::into));
+    }
+
+    /// Sends `client` an empty `events` batch of `tick` on its events key, stamped `stamp`.
+    pub fn events(&self, client: ClientId, tick: u32, stamp: impact_protocol::Stamp) {
+        let batch = impact_protocol::EventBatch { tick: impact_protocol::Tick(tick), revision: 0, events: vec![] };
+        self.publish(&keys::CLIENT_EVENTS.key(&self.world, Some(client)), &ServerMessage::Events(batch), Some(stamp));
+    }
+
+    /// Publishes `msg` on `key` (MessagePack), with `stamp` as the attachment when given.
+    fn publish(&self, key: &str, msg: &ServerMessage, stamp: Option<impact_protocol::Stamp>) {
+        let bytes = encode(msg, Encoding::MsgPack).unwrap();
+        let put = self.host.put(key, bytes).encoding(Encoding::MsgPack.zenoh_tag());
+        match stamp {
+            Some(s) => put.attachment(s.attachment()).wait().unwrap(),
             None => put.wait().unwrap(),
         }
     }

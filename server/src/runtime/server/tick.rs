@@ -148,9 +148,9 @@ impl TickLoop {
     /// Publishes on the log streams: in order with everything else, but never dropped by
     /// congestion (a standby that misses an entry must start again from a checkpoint).
     fn put_log(&self, key: String, msg: ServerMessage) {
-        let encoding = self.opts.encoding;
-        if self.egress.try_send(Out::Log { key, msg: Box::new(msg), encoding }).is_err() {
-            self.shared.egress_dropped.fetch_add(1, Ordering::Relaxed);
+        let (encoding, dropped_before) = (self.opts.encoding, self.shared.keyed_dropped.load(Ordering::Relaxed));
+        if self.egress.try_send(Out::Log { key, msg: Box::new(msg), encoding, dropped_before }).is_err() {
+            self.shared.dropped_for_key();
         }
     }
 
@@ -238,8 +238,8 @@ impl TickLoop {
             if self.primary.is_some() && last_announce.is_none_or(|t| t.elapsed() >= ANNOUNCE_EVERY) {
                 last_announce = Some(Instant::now());
                 self.announce();
-                self.watch_own_link(zs);
             }
+            self.watch_own_link(zs);
             // Deadline schedule. Behind by more than 4 ticks: drop the backlog and start a new
             // schedule from now (catching up by running ticks back to back would only make the
             // world run fast for a while); each dropped deadline counts as an overrun.

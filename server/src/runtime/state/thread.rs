@@ -77,7 +77,8 @@ pub fn run(
             };
             deferred += u64::from(p.deferred);
             // Held or fenced: nothing goes out. (A standby builds no frames: it has no epoch.)
-            let Ok(Some(stamp)) = owner.stamp() else { continue };
+            let Ok(Some(epoch)) = owner.stamp() else { continue };
+            let stamp = epoch.attachment();
             match target {
                 Some(publisher) => {
                     let _ = publisher.put(p.bytes).encoding(p.encoding.zenoh_tag()).attachment(stamp.to_vec()).wait();
