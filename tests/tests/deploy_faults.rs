@@ -33,9 +33,10 @@ use zenoh::Wait;
 /// killed come back to the standby), 22 (clients that leave before their first welcome reached
 /// them), 76 (a session dropped just before the router restarted: its clients came back while
 /// the server itself was cut off), 251 (an input told lost while a stalled path held its
-/// reject), 315 (a partition's backlog sent through a session dropped since) and 982 (a standby
-/// that took over while the router was down).
-const DEPLOY_SEEDS: [u64; 14] = [1, 2, 3, 4, 5, 6, 7, 8, 18, 22, 76, 251, 315, 982];
+/// reject), 315 (a partition's backlog sent through a session dropped since), 596 (clients back
+/// past their grace just before the failover: the log removed their old avatars after the
+/// standby heard them return) and 982 (a standby that took over while the router was down).
+const DEPLOY_SEEDS: [u64; 15] = [1, 2, 3, 4, 5, 6, 7, 8, 18, 22, 76, 251, 315, 596, 982];
 
 /// What the deployment's processes do to themselves in one seed: the router restarted (when
 /// after the start, for how long) and the primary killed (when), each drawn from the seed.
@@ -350,6 +351,9 @@ fn deployment_violations(r: &impact_client_sim::report::Report, wrong: &mut Vec<
         "clients back within the grace period lost their avatar",
     ));
     wrong.extend(short(r.returns_full_frame, r.returns_drawing, "returning clients got no full state frame"));
+    if r.returns_full_frame < r.returns_drawing {
+        wrong.extend(r.unframed.iter().map(|u| format!("    {u}")));
+    }
     wrong.extend(short(r.returns_resumed, r.returns, "returning clients had no input accepted after"));
     if r.returns_resumed < r.returns {
         wrong.extend(r.unresumed.iter().map(|u| format!("    {u}")));

@@ -434,7 +434,11 @@ impl TickLoop {
         true
     }
 
-    /// Keeps the clients' avatars as the log spawns and removes them.
+    /// Keeps the clients' avatars as the log spawns and removes them. The log runs a window
+    /// behind the presence this server hears: a client whose grace ran out on the primary may be
+    /// back already when the log removes its old avatar. It stays, present, without an avatar
+    /// until the log spawns its new one (or, after a takeover, it joins anew): dropping it would
+    /// leave a present client taken for gone, whose new avatar the takeover then removes.
     fn track_avatars(&mut self, adv: &Advance, removed: &[impact_protocol::EntityId]) {
         for (client, entity) in &adv.spawned {
             let state = self.new_client(*client, false, None, self.opts.encoding);
@@ -444,8 +448,13 @@ impl TickLoop {
             let gone: Vec<_> =
                 self.clients.iter().filter(|(_, s)| s.avatar == Some(*entity)).map(|(c, _)| *c).collect();
             for c in gone {
-                self.clients.remove(&c);
                 self.session.forget_client(c);
+                match self.clients.get_mut(&c) {
+                    Some(s) if s.present => s.avatar = None,
+                    _ => {
+                        self.clients.remove(&c);
+                    }
+                }
             }
         }
     }
