@@ -292,8 +292,8 @@ pub struct SessionStats {
     pub inputs_sent: u64,
     /// Inputs acknowledged (those whose own ack was lost and a later one told included).
     pub inputs_acked: u64,
-    /// Of them, inputs whose ack was lost and a later ack told accepted (`accepted_before`), or
-    /// a welcome's `next_seq`.
+    /// Of them, inputs whose ack was lost and a later ack told accepted (`accepted_before`), or,
+    /// further back than that reaches, below a welcome's `next_seq` once an ack came after it.
     pub acks_recovered: u64,
     /// Acked inputs that arrived after their tick had begun (`margin_ticks < 0`): the server
     /// rolled back for each.

@@ -5,9 +5,11 @@
 pub const RSS_BOUND_MIB: f64 = 512.0;
 
 /// Runs `run` for each seed, each one's summary printed (only a line for each that passed, on
-/// a long run), and fails naming the seeds that failed and how to run them again.
+/// a long run), and fails naming the seeds that failed, why (each one's reasons again, so a log
+/// cut in the middle still shows them at its end) and how to run them again.
 pub fn run_seeds(kind: &str, var: &str, seeds: Vec<u64>, run: fn(u64) -> Result<String, String>, test: &str) {
-    let (mut failed, long, started) = (Vec::new(), seeds.len() > 20, std::time::Instant::now());
+    let (mut failed, mut reasons, long, started) =
+        (Vec::new(), String::new(), seeds.len() > 20, std::time::Instant::now());
     for (k, &seed) in seeds.iter().enumerate() {
         match run(seed) {
             Ok(_) if long => eprintln!(
@@ -19,16 +21,30 @@ pub fn run_seeds(kind: &str, var: &str, seeds: Vec<u64>, run: fn(u64) -> Result<
             Ok(summary) => eprintln!("{kind} seed {seed}: ok\n{summary}\n"),
             Err(why) => {
                 eprintln!("{kind} seed {seed}: FAILED\n{why}\n");
+                reasons.push_str(&format!("seed {seed}: {}\n", reasons_of(&why)));
                 failed.push(seed);
             }
         }
     }
     assert!(
         failed.is_empty(),
-        "failing {kind} seeds: {failed:?} of {}; reproduce with {var}={} cargo test -p impact-tests --test {test}",
+        "failing {kind} seeds: {failed:?} of {}\n{reasons}reproduce with {var}={} cargo test -p impact-tests --test {test}",
         seeds.len(),
         failed.iter().map(u64::to_string).collect::<Vec<_>>().join(",")
     );
+}
+
+/// The reasons a failed run gave (what follows its last "FAILED:", else its last lines), at most
+/// 2,000 characters.
+fn reasons_of(why: &str) -> String {
+    let tail = match why.rsplit_once("FAILED:") {
+        Some((_, reasons)) => reasons.trim().to_string(),
+        None => why.lines().rev().take(6).collect::<Vec<_>>().into_iter().rev().collect::<Vec<_>>().join("\n"),
+    };
+    match tail.char_indices().nth(2_000) {
+        Some((cut, _)) => format!("{} [...]", &tail[..cut]),
+        None => tail,
+    }
 }
 
 /// What any seeded run's report shows wrong: an input answered twice, a view of a confirmed
