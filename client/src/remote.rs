@@ -30,12 +30,12 @@
 //!
 //! The stream's rules (PROTOCOL.md, state streams): a full frame replaces what is held, a delta
 //! applies to the frame before it, and after a gap in the frame numbers deltas are ignored until
-//! the next full frame ([`RemoteWorld::needs_full_frame`] says so meanwhile; the bodies held are
+//! the next full frame; a frame at a tick no newer than the newest applied is a repeat (a stream
+//! numbered anew, as after a reconnect or a takeover, goes on at newer ticks) ([`RemoteWorld::needs_full_frame`] says so meanwhile; the bodies held are
 //! still drawn, extrapolated within the bound). Everything held is bounded: at most
 //! [`RemoteConfig::max_bodies`] bodies (more are counted and not shown) and
 //! [`RemoteConfig::history`] samples each. Nothing a server or network sends panics it.
 
-use impact_protocol::serial::precedes;
 use impact_protocol::{BodyInfo, BodyMotion, EntityId, StateFrame, Tick};
 use std::collections::{BTreeMap, VecDeque};
 
@@ -123,7 +123,8 @@ pub enum Applied {
     /// A delta after a gap in the frame numbers (or before any full frame): ignored, and so is
     /// every delta until the next full frame.
     Gap,
-    /// A frame numbered before the one expected (a repeat): ignored.
+    /// A frame at a tick no newer than the newest applied (a repeat, or one that came late):
+    /// ignored.
     Stale,
 }
 
@@ -204,14 +205,20 @@ impl RemoteWorld {
     }
 
     /// Applies the next frame of the stream, in arrival order.
+    ///
+    /// Ticks only go forward along a stream (one frame a tick at most), so a frame at a tick no
+    /// newer than the newest applied is a repeat or late, whatever its number. The numbers tell
+    /// gaps: the server numbers a stream from 0 again when it takes it up anew (the client back
+    /// from a drop, a new owner after a takeover), and such a stream's first delta, its full
+    /// frame lost, is a gap like any other.
     pub fn apply(&mut self, frame: &StateFrame) -> Applied {
+        if Some(frame.tick) <= self.newest {
+            self.stats.ignored += 1;
+            return Applied::Stale;
+        }
         if !frame.full {
             match self.expected {
                 Some(n) if frame.frame == n => {}
-                Some(n) if precedes(frame.frame, n) => {
-                    self.stats.ignored += 1;
-                    return Applied::Stale;
-                }
                 Some(_) => {
                     self.stats.gaps += 1;
                     self.stats.ignored += 1;
@@ -224,10 +231,6 @@ impl RemoteWorld {
                 }
             }
         } else {
-            if self.expected.is_some_and(|n| precedes(frame.frame, n)) {
-                self.stats.ignored += 1;
-                return Applied::Stale;
-            }
             // Exactly the bodies it lists; those held before keep their samples.
             let listed: std::collections::BTreeSet<EntityId> =
                 frame.moved.iter().map(|m| m.0).chain(frame.entered.iter().map(|i| i.entity)).collect();
@@ -548,6 +551,41 @@ mod tests {
         assert_eq!(w.apply(&frame(2, 14, false, &[(1, [4.0, 0.0, 0.0], [1.0, 0.0, 0.0])])), Applied::Applied);
         assert!(!w.needs_full_frame() && w.stats().gaps == 0);
         assert!((x_at(&w, 1, 14.0) - 4.0).abs() < 1e-12);
+    }
+
+    /// A stream taken up anew (the client back after a drop, a new owner after a takeover)
+    /// numbers its frames from 0 again: its frames carry newer ticks, so they are not repeats. Its
+    /// full frame applies; a delta of it (the full frame lost) is a gap that asks for one, not
+    /// a repeat that would leave the bodies frozen until the numbers caught up.
+    #[test]
+    fn a_stream_numbered_anew_is_not_taken_for_repeats() {
+        let mut w = RemoteWorld::new(RemoteConfig::new(HZ));
+        w.apply(&frame(80, 100, true, &[(1, [0.0; 3], [0.0; 3])]));
+        assert_eq!(w.apply(&frame(81, 103, false, &[])), Applied::Applied);
+        assert_eq!(
+            w.apply(&frame(1, 140, false, &[(1, [9.0, 0.0, 0.0], [0.0; 3])])),
+            Applied::Gap,
+            "its full frame lost"
+        );
+        assert!(w.needs_full_frame());
+        assert_eq!(w.apply(&frame(2, 143, false, &[])), Applied::Gap);
+        w.apply(&frame(3, 146, true, &[(1, [5.0, 0.0, 0.0], [0.0; 3])]));
+        assert!(!w.needs_full_frame());
+        assert_eq!(w.apply(&frame(4, 149, false, &[(1, [6.0, 0.0, 0.0], [0.0; 3])])), Applied::Applied);
+        assert_eq!(x_at(&w, 1, 149.0), 6.0);
+        // Again, its full frame first this time: applied at once.
+        assert_eq!(w.apply(&frame(0, 200, true, &[(1, [7.0, 0.0, 0.0], [0.0; 3])])), Applied::Applied);
+        assert_eq!(w.apply(&frame(1, 203, false, &[])), Applied::Applied);
+        // Repeats are still repeats, and a late frame of the old numbering changes nothing.
+        assert_eq!(w.apply(&frame(0, 200, true, &[])), Applied::Stale);
+        assert_eq!(w.apply(&frame(1, 203, false, &[])), Applied::Stale);
+        assert_eq!(
+            w.apply(&frame(82, 106, true, &[(1, [0.0; 3], [0.0; 3])])),
+            Applied::Stale,
+            "late, of the old numbering"
+        );
+        assert_eq!(w.apply(&frame(2, 190, false, &[])), Applied::Stale, "the next number, at an old tick");
+        assert_eq!((w.stats().gaps, w.stats().full_frames), (1, 3));
     }
 
     /// Bounds: bodies past `max_bodies` are counted and not shown; samples per body are capped;

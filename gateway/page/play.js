@@ -2272,7 +2272,17 @@ var RemoteWorld = class {
   info(entity) {
     return this.bodies.get(entity)?.info;
   }
+  /**
+   * Applies the next frame, in arrival order. Ticks only go forward along a stream, so a frame at
+   * a tick no newer than the newest applied is a repeat or late, whatever its number; the numbers
+   * tell gaps (a stream taken up anew, back from a drop or after a takeover, numbers from 0 again
+   * at newer ticks: its first delta, its full frame lost, is a gap).
+   */
   apply(frame) {
+    if (this.newest !== null && frame.tick <= this.newest) {
+      this.stats.ignored++;
+      return "stale";
+    }
     if (!frame.full) {
       if (this.expected === null) {
         this.stats.ignored++;
@@ -2280,16 +2290,11 @@ var RemoteWorld = class {
       }
       if (frame.frame !== this.expected) {
         this.stats.ignored++;
-        if (precedes(frame.frame, this.expected)) return "stale";
         this.stats.gaps++;
         this.expected = null;
         return "gap";
       }
     } else {
-      if (this.expected !== null && precedes(frame.frame, this.expected)) {
-        this.stats.ignored++;
-        return "stale";
-      }
       const listed = /* @__PURE__ */ new Set([...frame.moved.map((m) => m[0]), ...frame.entered.map((i) => i.entity)]);
       for (const e of [...this.bodies.keys()]) if (!listed.has(e)) this.bodies.delete(e);
       this.stats.fullFrames++;

@@ -14,7 +14,6 @@
 // (`needsFullFrame`). Bounded: `maxBodies` bodies, `history` samples each.
 
 import type { BodyInfo, BodyMotion, StateFrame, Vec3 } from "./messages.js";
-import { precedes } from "./outbox.js";
 
 export interface RemoteConfig {
   tickHz: number;
@@ -103,7 +102,17 @@ export class RemoteWorld {
     return this.bodies.get(entity)?.info;
   }
 
+  /**
+   * Applies the next frame, in arrival order. Ticks only go forward along a stream, so a frame at
+   * a tick no newer than the newest applied is a repeat or late, whatever its number; the numbers
+   * tell gaps (a stream taken up anew, back from a drop or after a takeover, numbers from 0 again
+   * at newer ticks: its first delta, its full frame lost, is a gap).
+   */
   apply(frame: StateFrame): Applied {
+    if (this.newest !== null && frame.tick <= this.newest) {
+      this.stats.ignored++;
+      return "stale";
+    }
     if (!frame.full) {
       if (this.expected === null) {
         this.stats.ignored++;
@@ -111,16 +120,11 @@ export class RemoteWorld {
       }
       if (frame.frame !== this.expected) {
         this.stats.ignored++;
-        if (precedes(frame.frame, this.expected)) return "stale";
         this.stats.gaps++;
         this.expected = null;
         return "gap";
       }
     } else {
-      if (this.expected !== null && precedes(frame.frame, this.expected)) {
-        this.stats.ignored++;
-        return "stale";
-      }
       const listed = new Set([...frame.moved.map((m) => m[0]), ...frame.entered.map((i) => i.entity)]);
       for (const e of [...this.bodies.keys()]) if (!listed.has(e)) this.bodies.delete(e);
       this.stats.fullFrames++;

@@ -234,6 +234,24 @@ test("state frames are drawn at the render tick, and a gap asks for a full frame
   assert.equal(s.pollTransmit(340), null, "not again at once");
 });
 
+test("a stream numbered anew (back from a drop, a takeover) is not taken for repeats", () => {
+  const s = playing();
+  s.receive({ type: "state", ...frame(80, 110, true, 0, 0) }, 300);
+  s.receive({ type: "state", ...frame(81, 113, false, 1, 0) }, 310);
+  // Numbered from 0 again at newer ticks, its full frame lost: a gap, which asks for one.
+  s.receive({ type: "state", ...frame(1, 150, false, 9, 0) }, 320);
+  assert.equal(s.remote?.needsFullFrame, true);
+  assert.equal(s.pollTransmit(330)?.type, "full_frame");
+  s.receive({ type: "state", ...frame(2, 153, true, 5, 0) }, 340);
+  assert.equal(s.remote?.needsFullFrame, false);
+  // Its full frame first: applied at once; repeats are still repeats.
+  assert.equal(s.remote?.apply({ ...frame(0, 200, true, 7, 0) }), "applied");
+  assert.equal(s.remote?.apply({ ...frame(0, 200, true, 7, 0) }), "stale");
+  assert.equal(s.remote?.apply({ ...frame(82, 116, true, 0, 0) }), "stale", "late, of the old numbering");
+  assert.equal(s.remote?.apply({ ...frame(1, 190, false, 0, 0) }), "stale", "the next number, at an old tick");
+  assert.equal(s.remote?.stats.fullFrames, 3);
+});
+
 test("the own avatar is predicted from its inputs and corrected without a jump", () => {
   const s = playing();
   s.receive({ type: "state", ...frame(0, 110, true, 0, 0, [0, 0]) }, 300);
