@@ -179,7 +179,8 @@ fn deployment_run(seed: u64) -> Result<String, String> {
             .args(extra);
         Proc::spawn(&format!("dfault-{name}-{seed}"), cmd)
     };
-    let mut primary = server("primary", &["--quiet", "--record", &rec_p.to_string_lossy()]);
+    // Not quiet: a failing seed shows the primary's clients present and inputs each second.
+    let mut primary = server("primary", &["--record", &rec_p.to_string_lossy()]);
     if !primary.wait_for_output("listening on", Duration::from_secs(20)) {
         return Err(format!("seed {seed}: the primary did not start:\n{}", primary.output()));
     }
