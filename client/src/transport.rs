@@ -273,11 +273,6 @@ pub fn ask_confirmed(
         .get(selector)
         // One reply per tick, all on the query's key: Zenoh would keep only the latest.
         .consolidation(::zenoh::query::ConsolidationMode::None)
-        // Not `Block` (a query's default): asked while the server is stalled, a blocking query
-        // held up this session's later messages at the router, its inputs included, until the
-        // end of a run (deployment seed 433). A query dropped on the way ends unanswered at the
-        // timeout, and the tick is given up on, as one the server no longer keeps.
-        .congestion_control(::zenoh::qos::CongestionControl::Drop)
         .timeout(RECOVERY_QUERY_TIMEOUT)
         .callback(move |reply| {
             let _ = &guard;

@@ -243,8 +243,6 @@ impl Relay {
             .session
             .get(selector)
             .consolidation(zenoh::query::ConsolidationMode::None)
-            // As the client library's: a query that may not block the session's other messages.
-            .congestion_control(zenoh::qos::CongestionControl::Drop)
             .timeout(impact_client::transport::RECOVERY_QUERY_TIMEOUT)
             .await;
         let Ok(replies) = asked else { return Vec::new() };
