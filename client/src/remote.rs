@@ -30,9 +30,10 @@
 //!
 //! The stream's rules (PROTOCOL.md, state streams): a full frame replaces what is held, a delta
 //! applies to the frame before it, and after a gap in the frame numbers deltas are ignored until
-//! the next full frame; a frame at a tick no newer than the newest applied is a repeat (a stream
-//! numbered anew, as after a reconnect or a takeover, goes on at newer ticks) ([`RemoteWorld::needs_full_frame`] says so meanwhile; the bodies held are
-//! still drawn, extrapolated within the bound). Everything held is bounded: at most
+//! the next full frame ([`RemoteWorld::needs_full_frame`] says so meanwhile; the bodies held are
+//! still drawn, extrapolated within the bound). A frame at a tick no newer than the newest
+//! applied is a repeat, whatever its number: a stream numbered anew (after a reconnect or a
+//! takeover) goes on at newer ticks. Everything held is bounded: at most
 //! [`RemoteConfig::max_bodies`] bodies (more are counted and not shown) and
 //! [`RemoteConfig::history`] samples each. Nothing a server or network sends panics it.
 
