@@ -146,6 +146,9 @@ pub fn open_session(
             // left the machine. Sixteen batches, allocated only when a burst needs them, as the
             // server has.
             c.insert_json5("transport/link/tx/queue/size/data", "16").map_err(bad)?;
+            // A receive window that stays open after a pause, as the server's (see the constant).
+            let rcvbuf = impact_protocol::limits::TCP_RECEIVE_BUFFER_BYTES.to_string();
+            c.insert_json5("transport/link/tcp/so_rcvbuf", &rcvbuf).map_err(bad)?;
             c
         }
     };

@@ -45,3 +45,12 @@ pub const MAX_GAME_STATE_NAME_LEN: usize = 16;
 
 /// Longest reason a world's closing gives, in bytes.
 pub const MAX_REASON_LEN: usize = 256;
+
+/// The receive buffer every impact process asks of its TCP links (Zenoh's
+/// `transport/link/tcp/so_rcvbuf`; `deploy/zenohd.json5` sets it on the router): 1 MiB, which
+/// Linux doubles. On loopback (a server beside its router) a segment is 64 KB, and Linux's
+/// default buffer of 128 KB advertises about one segment of window: once a paused process (a
+/// hung host, a stop under its lease) has let that buffer fill, its window can stay below one
+/// segment, the sender holds everything back, and the link carries nothing until a lease ends
+/// it. With this buffer the window stays many segments wide.
+pub const TCP_RECEIVE_BUFFER_BYTES: u32 = 1 << 20;

@@ -35,8 +35,10 @@ use zenoh::Wait;
 /// the server itself was cut off), 251 (an input told lost while a stalled path held its
 /// reject), 315 (a partition's backlog sent through a session dropped since), 596 (clients back
 /// past their grace just before the failover: the log removed their old avatars after the
-/// standby heard them return) and 982 (a standby that took over while the router was down).
-const DEPLOY_SEEDS: [u64; 15] = [1, 2, 3, 4, 5, 6, 7, 8, 18, 22, 76, 251, 315, 596, 982];
+/// standby heard them return), 433 (a primary stopped as a healed partition's backlog came at
+/// it: its link from the router stalled in TCP; BENCHMARKS.md) and 982 (a standby that took
+/// over while the router was down).
+const DEPLOY_SEEDS: [u64; 16] = [1, 2, 3, 4, 5, 6, 7, 8, 18, 22, 76, 251, 315, 433, 596, 982];
 
 /// What the deployment's processes do to themselves in one seed: the router restarted (when
 /// after the start, for how long) and the primary killed (when), each drawn from the seed.
@@ -179,7 +181,8 @@ fn deployment_run(seed: u64) -> Result<String, String> {
             .args(extra);
         Proc::spawn(&format!("dfault-{name}-{seed}"), cmd)
     };
-    // Not quiet: a failing seed shows the primary's clients present and inputs each second.
+    // Not quiet: a failing seed shows the primary's clients (those it knows, present or not)
+    // and inputs accepted each second.
     let mut primary = server("primary", &["--record", &rec_p.to_string_lossy()]);
     if !primary.wait_for_output("listening on", Duration::from_secs(20)) {
         return Err(format!("seed {seed}: the primary did not start:\n{}", primary.output()));

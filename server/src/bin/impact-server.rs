@@ -157,6 +157,8 @@ struct Args {
 
 fn main() -> Result<()> {
     let args = Args::parse();
+    // Zenoh's own log, when RUST_LOG asks for it (e.g. RUST_LOG=zenoh_transport=debug).
+    zenoh::try_init_log_from_env();
     let users = args.users.as_deref().map(impact_server::runtime::auth::load).transpose()?;
     if args.print_acl {
         let users = users.context("--print-acl needs --users")?;

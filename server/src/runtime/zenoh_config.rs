@@ -39,6 +39,9 @@ pub fn zenoh_config(file: Option<&Path>, listen: &[String], connect: &[String]) 
             // allocated only when a burst needs them (lazily: Zenoh's default), bound a link's
             // queue at 1 MiB.
             c.insert_json5("transport/link/tx/queue/size/data", "16").map_err(|e| err("queue size", e))?;
+            // A receive window that stays open after a pause (see the constant).
+            let rcvbuf = impact_protocol::limits::TCP_RECEIVE_BUFFER_BYTES.to_string();
+            c.insert_json5("transport/link/tcp/so_rcvbuf", &rcvbuf).map_err(|e| err("receive buffer", e))?;
             c
         }
     };
