@@ -1,7 +1,7 @@
 //! Real processes for end-to-end tests and deployment benchmarks: the binaries of this build
 //! and a zenohd router, each killed when dropped, with its output in a log file.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -24,9 +24,9 @@ pub fn zenohd() -> PathBuf {
     PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
 }
 
-/// The repository this crate was built from.
+/// The repository: the one the working directory is in, else the one this crate was built from.
 fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+    impact_core::scene::checkout()
 }
 
 /// The repository's router configuration.

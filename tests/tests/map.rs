@@ -31,7 +31,7 @@ use std::path::{Path, PathBuf};
 const MARKER: &str = "<!-- map: every file under each crate's src/; tests/tests/map.rs checks it -->";
 
 fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("the tests crate is inside the repository").to_path_buf()
+    impact_core::scene::checkout()
 }
 
 /// The map block: the lines of the ```text fence right after the marker line.

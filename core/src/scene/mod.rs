@@ -110,10 +110,21 @@ impl Scene {
     }
 
     /// The bundled scene by name (`arena`, `breakout`, `corridor`, `terrain`, `bullets`), from
-    /// the `scenes/` directory of the repository.
+    /// the `scenes/` directory of [`checkout`].
     pub fn bundled_path(name: &str) -> PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join("scenes").join(format!("{name}.toml"))
+        checkout().join("scenes").join(format!("{name}.toml"))
     }
+}
+
+/// The impact repository the working directory is in (its root or any folder below it, as
+/// `cargo test` and the README's commands run), else the one this crate was built from. Cargo does
+/// not rebuild a crate whose checkout moved, so a build kept across clones (CI's cache) must not
+/// send every test and tool to a clone that may be gone, or that holds other scenes.
+pub fn checkout() -> PathBuf {
+    let is_checkout =
+        |root: &Path| root.join("scenes").is_dir() && root.join("core").join("src").join("scene").is_dir();
+    let here = std::env::current_dir().ok().and_then(|d| d.ancestors().find(|a| is_checkout(a)).map(Path::to_path_buf));
+    here.unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join(".."))
 }
 
 struct Builder {

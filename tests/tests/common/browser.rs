@@ -167,7 +167,7 @@ pub fn keep_screenshot(png: &[u8], name: &str) -> PathBuf {
         super::process::binary("impact-server").parent().and_then(|p| p.parent()).expect("target dir").join(name);
     std::fs::write(&target, png).expect("writing the screenshot");
     if std::env::var_os("IMPACT_UPDATE_SCREENSHOT").is_some() {
-        let docs = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs").join(name);
+        let docs = impact_core::scene::checkout().join("docs").join(name);
         std::fs::write(&docs, png).expect("writing the screenshot into docs/");
     }
     target
