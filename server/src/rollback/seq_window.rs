@@ -8,6 +8,10 @@
 //! presence and its grace period), not just for the rollback window, and the memory is a fixed
 //! 136 bytes per client however long it stays. Seqs compare as serial numbers
 //! ([`impact_protocol::serial`]): a client's seqs go on past `u32::MAX` at 1.
+//!
+//! [`Window`] is the same over any multiple of 64 seqs: the load generator keeps a wider one per
+//! client over the seqs the server acked, so a second ack (an input applied twice) is seen in
+//! fixed memory from the first input on.
 
 use impact_protocol::serial::{distance, next_seq, precedes};
 
@@ -15,6 +19,9 @@ use impact_protocol::serial::{distance, next_seq, precedes};
 pub const WINDOW: u32 = 1024;
 
 const WORDS: usize = (WINDOW / 64) as usize;
+
+/// One client's window on the server: [`WINDOW`] seqs.
+pub type SeqWindow = Window<WORDS>;
 
 /// Why a seq was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -28,24 +35,33 @@ pub enum Replay {
     },
 }
 
-/// One client's window.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
-pub struct SeqWindow {
+/// A window over `64 * N` seqs.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Window<const N: usize> {
     /// The highest seq accepted, if any.
     highest: Option<u32>,
-    /// Bit `s % WINDOW` is set when seq `s` (within the window) was accepted.
-    bits: [u64; WORDS],
+    /// Bit `s % Self::SEQS` is set when seq `s` (within the window) was accepted.
+    bits: [u64; N],
 }
 
-impl SeqWindow {
+impl<const N: usize> Default for Window<N> {
+    fn default() -> Self {
+        Window { highest: None, bits: [0; N] }
+    }
+}
+
+impl<const N: usize> Window<N> {
+    /// Seqs remembered below the highest accepted one (including it).
+    pub const SEQS: u32 = 64 * N as u32;
+
     /// `Ok` when `seq` has not been accepted (and can still be told apart).
     pub fn check(&self, seq: u32) -> Result<(), Replay> {
         let Some(h) = self.highest else { return Ok(()) };
         if precedes(h, seq) {
             return Ok(());
         }
-        if distance(seq, h) >= WINDOW {
-            return Err(Replay::BelowFloor { floor: h.wrapping_sub(WINDOW) });
+        if distance(seq, h) >= Self::SEQS {
+            return Err(Replay::BelowFloor { floor: h.wrapping_sub(Self::SEQS) });
         }
         if self.bit(seq) {
             Err(Replay::Seen)
@@ -60,8 +76,8 @@ impl SeqWindow {
             Some(h) if !precedes(h, seq) => {}
             Some(h) => {
                 // The seqs between the old highest and the new one enter the window unseen.
-                if distance(h, seq) >= WINDOW {
-                    self.bits = [0; WORDS];
+                if distance(h, seq) >= Self::SEQS {
+                    self.bits = [0; N];
                 } else {
                     for k in 1..distance(h, seq) {
                         self.set(h.wrapping_add(k), false);
@@ -80,7 +96,7 @@ impl SeqWindow {
         let Some(h) = self.highest else { return 0 };
         (0..64u32)
             .map(|k| (k, seq.wrapping_sub(k + 1)))
-            .filter(|&(_, s)| distance(s, h) < WINDOW && self.bit(s))
+            .filter(|&(_, s)| distance(s, h) < Self::SEQS && self.bit(s))
             .fold(0, |bits, (k, _)| bits | 1 << k)
     }
 
@@ -95,17 +111,35 @@ impl SeqWindow {
     }
 
     /// The window [`parts`](Self::parts) describe; `None` when `bits` has the wrong length.
-    pub fn from_parts(highest: Option<u32>, bits: &[u64]) -> Option<SeqWindow> {
-        Some(SeqWindow { highest, bits: bits.try_into().ok()? })
+    pub fn from_parts(highest: Option<u32>, bits: &[u64]) -> Option<Window<N>> {
+        Some(Window { highest, bits: bits.try_into().ok()? })
+    }
+
+    /// Remembers `seq` as accepted and says whether it was new: `false` when it was accepted
+    /// before, `true` also when it is below the floor (too old to tell; not recorded).
+    pub fn insert(&mut self, seq: u32) -> bool {
+        match self.check(seq) {
+            Ok(()) => {
+                self.accept(seq);
+                true
+            }
+            Err(Replay::Seen) => false,
+            Err(Replay::BelowFloor { .. }) => true,
+        }
+    }
+
+    /// Whether `seq` was accepted (and is still in the window).
+    pub fn contains(&self, seq: u32) -> bool {
+        self.check(seq) == Err(Replay::Seen)
     }
 
     fn bit(&self, seq: u32) -> bool {
-        let i = seq % WINDOW;
+        let i = seq % Self::SEQS;
         self.bits[(i / 64) as usize] & (1 << (i % 64)) != 0
     }
 
     fn set(&mut self, seq: u32, on: bool) {
-        let i = seq % WINDOW;
+        let i = seq % Self::SEQS;
         let (w, b) = ((i / 64) as usize, 1u64 << (i % 64));
         if on {
             self.bits[w] |= b;
@@ -123,9 +157,14 @@ mod tests {
 
     /// The model: every accepted seq in a set; below the floor is refused whether seen or not.
     fn model(accepted: &BTreeSet<u32>, seq: u32) -> Result<(), Replay> {
+        model_of(WINDOW, accepted, seq)
+    }
+
+    /// The model of a window over `seqs`.
+    fn model_of(seqs: u32, accepted: &BTreeSet<u32>, seq: u32) -> Result<(), Replay> {
         let Some(&h) = accepted.last() else { return Ok(()) };
-        if seq <= h && h - seq >= WINDOW {
-            Err(Replay::BelowFloor { floor: h - WINDOW })
+        if seq <= h && h - seq >= seqs {
+            Err(Replay::BelowFloor { floor: h - seqs })
         } else if accepted.contains(&seq) {
             Err(Replay::Seen)
         } else {
@@ -162,6 +201,27 @@ mod tests {
                     .filter(|&(_, s)| model(&accepted, s) == Err(Replay::Seen))
                     .fold(0, |bits, (k, _)| bits | 1 << k);
                 prop_assert_eq!(w.accepted_before(base.wrapping_add(seq)), told, "seq {}", seq);
+            }
+        }
+
+        #[test]
+        /// A narrow window (128 seqs) as a set, through `insert` and `contains`: a seq is new
+        /// unless the model holds it accepted; below the floor it is new and not recorded.
+        fn a_window_of_any_width_is_a_set_of_its_latest_seqs(
+            steps in prop::collection::vec(0u32..1000, 1..400),
+            base in prop_oneof![Just(0u32), u32::MAX - 1000..=u32::MAX, any::<u32>()],
+        ) {
+            let mut w = Window::<2>::default();
+            let mut accepted = BTreeSet::new();
+            for seq in steps {
+                let before = model_of(Window::<2>::SEQS, &accepted, seq);
+                prop_assert_eq!(w.contains(base.wrapping_add(seq)), before == Err(Replay::Seen), "seq {}", seq);
+                prop_assert_eq!(w.insert(base.wrapping_add(seq)), before != Err(Replay::Seen), "seq {}", seq);
+                if before.is_ok() {
+                    accepted.insert(seq);
+                }
+                let recorded = !matches!(before, Err(Replay::BelowFloor { .. }));
+                prop_assert_eq!(w.contains(base.wrapping_add(seq)), recorded, "seq {} after its insert", seq);
             }
         }
     }
