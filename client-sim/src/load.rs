@@ -279,7 +279,7 @@ struct Client {
     steady: (u64, u64),
     /// Each confirmed batch it received, by tick (a digest of its events): a second batch of a
     /// tick must say the same. The last [`CONFIRMED_KEPT`] ticks.
-    confirmed: BTreeMap<u32, u64>,
+    confirmed: Confirmed,
     /// Its session was dropped: when.
     left: Option<Instant>,
     /// Its returns after a dropped session, the latest last.
@@ -373,11 +373,47 @@ impl Client {
     }
 }
 
-/// A confirmed batch's events, digested (FNV-1a over their JSON) to see a second batch of a
-/// tick differ.
-fn digest(events: &[impact_protocol::CollisionEvent]) -> u64 {
-    let bytes = serde_json::to_vec(events).unwrap_or_default();
-    bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ u64::from(*b)).wrapping_mul(0x0100_0000_01b3))
+/// A confirmed batch's events, digested (FNV-1a over their JSON, folded to 31 bits, the lowest
+/// set) to see a second batch of a tick differ. Written into the hash as it is made: every client digests
+/// every batch, 64 a second.
+fn digest(events: &[impact_protocol::CollisionEvent]) -> u32 {
+    struct Fnv(u64);
+    impl std::io::Write for Fnv {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            self.0 = buf.iter().fold(self.0, |h, b| (h ^ u64::from(*b)).wrapping_mul(0x0100_0000_01b3));
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+    let mut h = Fnv(0xcbf2_9ce4_8422_2325);
+    let _ = serde_json::to_writer(&mut h, events);
+    (h.0 ^ h.0 >> 32) as u32 | 1
+}
+
+/// The digests of the confirmed batches a client received over the last [`CONFIRMED_KEPT`]
+/// ticks: a fixed ring of (tick, digest), the digest 0 when empty ([`digest`]s are odd), 8 bytes
+/// a tick (a map of them made and freed a node a tick for every client).
+struct Confirmed(Box<[(u32, u32)]>);
+
+impl Confirmed {
+    fn new() -> Confirmed {
+        Confirmed(vec![(0, 0); CONFIRMED_KEPT as usize].into_boxed_slice())
+    }
+
+    /// Notes the digest of `tick`'s batch and gives the one noted for that tick before, if any
+    /// (a tick older than those kept is not noted).
+    fn note(&mut self, tick: u32, digest: u32) -> Option<u32> {
+        let slot = &mut self.0[(tick % CONFIRMED_KEPT) as usize];
+        if slot.1 != 0 && slot.0 == tick {
+            return Some(slot.1);
+        }
+        if slot.1 == 0 || impact_protocol::serial::precedes(slot.0, tick) {
+            *slot = (tick, digest);
+        }
+        None
+    }
 }
 
 /// The seqs a message carries.
@@ -884,7 +920,7 @@ fn clients(cfg: &LoadConfig, start: Instant) -> anyhow::Result<Vec<Client>> {
             margins: Margins::default(),
             early: (0, 0),
             steady: (0, 0),
-            confirmed: BTreeMap::new(),
+            confirmed: Confirmed::new(),
             left: None,
             returns: Vec::new(),
             last_future: None,
@@ -1267,14 +1303,10 @@ impl Run<'_> {
                 // Nothing a client saw confirmed changes: a second batch of a tick (which the
                 // protocol never sends) must at least say the same.
                 let digest = digest(&b.events);
-                match c.confirmed.insert(b.tick.0, digest) {
+                match c.confirmed.note(b.tick.0, digest) {
                     Some(d) if d != digest => r.confirmed_changed += 1,
                     Some(_) => r.confirmed_repeated += 1,
                     None => {}
-                }
-                let keep = b.tick.0.saturating_sub(CONFIRMED_KEPT);
-                while c.confirmed.first_key_value().is_some_and(|(t, _)| *t < keep) {
-                    c.confirmed.pop_first();
                 }
             }
             ServerMessage::State(f) if f.full => {
@@ -1667,6 +1699,34 @@ impl Run<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The ring of confirmed digests tells a second batch of a tick it keeps, across the wrap of
+    /// the ticks, and forgets a tick once the ring went round past it.
+    #[test]
+    fn the_confirmed_ring_tells_a_second_batch_of_a_kept_tick() {
+        let mut c = Confirmed::new();
+        let start = u32::MAX - 100;
+        let d = |k: u32| 2 * k + 1;
+        for k in 0..3000u32 {
+            assert_eq!(c.note(start.wrapping_add(k), d(k)), None, "tick {k}: the first batch");
+        }
+        let newest = start.wrapping_add(2999);
+        assert_eq!(c.note(newest, 7), Some(d(2999)));
+        assert_eq!(c.note(newest.wrapping_sub(CONFIRMED_KEPT - 1), 7), Some(d(3000 - CONFIRMED_KEPT)));
+        // Older than the ring keeps: not told, and the newer tick in its slot is kept.
+        let old = newest.wrapping_sub(CONFIRMED_KEPT);
+        assert_eq!(c.note(old, 7), None);
+        assert_eq!(c.note(newest, 7), Some(d(2999)));
+    }
+
+    /// The digest is the FNV-1a of the events' JSON, folded: the same as hashing the bytes.
+    #[test]
+    fn a_digest_is_of_the_events_json() {
+        let events: Vec<impact_protocol::CollisionEvent> = Vec::new();
+        let bytes = serde_json::to_vec(&events).unwrap();
+        let h = bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ u64::from(*b)).wrapping_mul(0x0100_0000_01b3));
+        assert_eq!(digest(&events), (h ^ h >> 32) as u32 | 1);
+    }
 
     /// Drops every 60 s over a 5-minute run on 3 sessions: sessions 1 and 2 in turn, the first
     /// session never, the last drop over a second before the load ends.

@@ -611,11 +611,16 @@ impl Session {
         if cause == "unexplained" && st.errors_untouched_m.len() < MAX_PREDICTION_SAMPLES {
             st.errors_untouched_m.push(m.error);
         }
-        // A late input explains the states after it until the server's states include it: it
-        // was applied at most a window late, and the next states still differ from a prediction
-        // replayed from one that did not.
+        self.forget_late_before(m.tick);
+    }
+
+    /// Forgets the late inputs that can no longer explain the state of `tick`: a late input
+    /// explains the states after it until the server's states include it (it was applied at
+    /// most a window late, and the next states still differ from a prediction replayed from one
+    /// that did not).
+    fn forget_late_before(&mut self, tick: Tick) {
         let keep = self.welcome.as_ref().map_or(24, |w| w.window_ticks + w.tick_hz / 8);
-        while self.late_ticks.front().is_some_and(|&t| t.0.saturating_add(keep) < m.tick.0) {
+        while self.late_ticks.front().is_some_and(|&t| t.0.saturating_add(keep) < tick.0) {
             self.late_ticks.pop_front();
         }
     }
@@ -902,6 +907,13 @@ impl Session {
                 self.observe(a.server_tick, now);
                 self.clock.recommend(a.lead_ticks);
                 self.stats.late_acks += u64::from(a.margin_ticks < 0);
+                if a.margin_ticks < 0 {
+                    // Forgotten as they age here too, not only as states are compared (a client
+                    // that does not predict held a thousand after hours of play), with room for
+                    // the states of the ticks before this one, still to come.
+                    let room = self.welcome.as_ref().map_or(24, |w| w.window_ticks + w.tick_hz / 8);
+                    self.forget_late_before(Tick(a.applied_tick.0.saturating_sub(room)));
+                }
                 if a.margin_ticks < 0 && self.late_ticks.len() < 1024 {
                     self.late_ticks.push_back(a.applied_tick);
                 }
@@ -1258,6 +1270,29 @@ mod tests {
             lead_ticks: lead,
             accepted_before: 0,
         })
+    }
+
+    /// The ticks of late inputs are kept only as long as they can explain a misprediction, also
+    /// by a client that does not predict (it held a thousand after hours of play).
+    #[test]
+    fn late_inputs_are_forgotten_as_they_age() {
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig::new(ClientId(7)));
+        s.receive(welcome(0), t0);
+        for k in 0..2000u32 {
+            let tick = 101 + 10 * k;
+            let late = InputAck {
+                margin_ticks: -1,
+                ..match ack(k, tick, 2) {
+                    ServerMessage::Ack(a) => a,
+                    _ => unreachable!(),
+                }
+            };
+            s.receive(ServerMessage::Ack(late), t0);
+        }
+        // Within 2 x (16 + 64 / 8) ticks of the newest, ten ticks apart.
+        assert!(s.late_ticks.len() <= 5, "{} late ticks held", s.late_ticks.len());
+        assert_eq!(s.late_ticks.back(), Some(&Tick(101 + 10 * 1999)));
     }
 
     /// After a failover the new owner's messages carry a newer epoch; what the old primary still
