@@ -282,8 +282,9 @@ struct Client {
     confirmed: Confirmed,
     /// Its session was dropped: when.
     left: Option<Instant>,
-    /// Its returns after a dropped session, the latest last.
-    returns: Vec<Return>,
+    /// Its latest return after a dropped session, still being filled in: an earlier one is
+    /// final and told into the report when the next comes (a list of them grew all a soak long).
+    returned: Option<Return>,
     /// The last `future` reject: the tick the input carried, the newest the server took then,
     /// and the client's view tick and lead when it came (told when a return never resumed).
     last_future: Option<String>,
@@ -319,6 +320,53 @@ struct Return {
     /// known lost, told when it never resumed.
     refused: (u32, Option<RejectReason>),
     lost: u32,
+}
+
+impl Return {
+    /// Counts the return of client `c` into the report, and tells it one by one if its client
+    /// drew and no full frame came after it, or if it never resumed.
+    fn tell(&self, r: &mut Report, load_start: Instant, c: &Client) {
+        // A client that left before its first welcome reached it knew no avatar to keep.
+        let in_grace = self.away + Duration::from_millis(250) < GRACE && self.avatar.is_some();
+        r.returns += 1;
+        r.returns_welcomed += u64::from(self.welcomed.is_some());
+        r.returns_in_grace += u64::from(in_grace);
+        r.returns_kept_avatar += u64::from(in_grace && self.welcomed == Some(true));
+        r.returns_drawing += u64::from(c.game);
+        r.returns_full_frame += u64::from(c.game && self.full_frame);
+        r.returns_resumed += u64::from(self.resumed);
+        // Who, when, how long away and how welcomed: the start of each line told.
+        let who = || {
+            format!(
+                "client {} back at {:.3} s after {:.3} s away, welcomed {:?}",
+                c.id.0,
+                self.at.saturating_duration_since(load_start).as_secs_f64(),
+                self.away.as_secs_f64(),
+                self.welcomed
+            )
+        };
+        if c.game && !self.full_frame && r.unframed.len() < UNEXPECTED_KEPT {
+            let s = c.session.stats();
+            r.unframed.push(format!(
+                "{}, epoch {}; its session: {} state frames, {} full frames asked",
+                who(),
+                c.session.epoch().0,
+                s.state_frames,
+                s.full_frames_asked
+            ));
+        }
+        if !self.resumed && r.unresumed.len() < UNEXPECTED_KEPT {
+            r.unresumed.push(format!(
+                "{}, inputs after: {} refused (last {:?}), {} lost, {} awaiting; the last future reject: {}",
+                who(),
+                self.refused.0,
+                self.refused.1.map(RejectReason::name),
+                self.lost,
+                c.session.pending_inputs(),
+                c.last_future.as_deref().unwrap_or("none"),
+            ));
+        }
+    }
 }
 
 /// Inputs sent this long after play began are "early": the clock has only the sync's estimate.
@@ -922,7 +970,7 @@ fn clients(cfg: &LoadConfig, start: Instant) -> anyhow::Result<Vec<Client>> {
             steady: (0, 0),
             confirmed: Confirmed::new(),
             left: None,
-            returns: Vec::new(),
+            returned: None,
             last_future: None,
         });
     }
@@ -1088,7 +1136,9 @@ impl Run<'_> {
                         refused: (0, None),
                         lost: 0,
                     };
-                    c.returns.push(back);
+                    if let Some(done) = c.returned.replace(back) {
+                        done.tell(&mut self.r, self.load_start, c);
+                    }
                 }
             }
         }
@@ -1233,7 +1283,7 @@ impl Run<'_> {
         }
         match &msg {
             ServerMessage::Welcome(w) if w.client == c.id => {
-                if let Some(back) = c.returns.last_mut().filter(|b| b.welcomed.is_none()) {
+                if let Some(back) = c.returned.as_mut().filter(|b| b.welcomed.is_none()) {
                     back.welcomed = Some(w.avatar.is_some() && w.avatar == back.avatar);
                 }
                 // Welcomed again (a reconnect, a takeover): the server answered every seq below
@@ -1310,7 +1360,7 @@ impl Run<'_> {
                 }
             }
             ServerMessage::State(f) if f.full => {
-                if let Some(back) = c.returns.last_mut() {
+                if let Some(back) = c.returned.as_mut() {
                     back.full_frame = true;
                 }
             }
@@ -1369,7 +1419,7 @@ impl Run<'_> {
             // its bound (4,096 news a client, a soak's slow climb of memory).
             s.take_event_news().for_each(drop);
             for a in s.take_answers() {
-                if let Some(back) = c.returns.last_mut().filter(|b| a.sent >= b.at) {
+                if let Some(back) = c.returned.as_mut().filter(|b| a.sent >= b.at) {
                     match a.outcome {
                         Outcome::Rejected(why) => back.refused = (back.refused.0 + 1, Some(why)),
                         Outcome::Lost => back.lost += 1,
@@ -1392,7 +1442,7 @@ impl Run<'_> {
                 let _ = self.latency.record(a.round_trip.as_micros().max(1) as u64);
                 let Outcome::Accepted { margin_ticks, .. } = a.outcome else { continue };
                 self.r.acks += 1;
-                if let Some(back) = c.returns.last_mut().filter(|b| a.sent >= b.at) {
+                if let Some(back) = c.returned.as_mut().filter(|b| a.sent >= b.at) {
                     back.resumed = true;
                 }
                 c.margins.record(margin_ticks);
@@ -1549,46 +1599,9 @@ impl Run<'_> {
                 ));
             }
         }
-        for (c, back) in self.clients.iter().flat_map(|c| c.returns.iter().map(move |b| (c, b))) {
-            // A client that left before its first welcome reached it knew no avatar to keep.
-            let in_grace = back.away + Duration::from_millis(250) < GRACE && back.avatar.is_some();
-            r.returns += 1;
-            r.returns_welcomed += u64::from(back.welcomed.is_some());
-            r.returns_in_grace += u64::from(in_grace);
-            r.returns_kept_avatar += u64::from(in_grace && back.welcomed == Some(true));
-            r.returns_drawing += u64::from(c.game);
-            r.returns_full_frame += u64::from(c.game && back.full_frame);
-            r.returns_resumed += u64::from(back.resumed);
-            // Who, when, how long away and how welcomed: the start of each line told.
-            let who = || {
-                format!(
-                    "client {} back at {:.3} s after {:.3} s away, welcomed {:?}",
-                    c.id.0,
-                    back.at.saturating_duration_since(self.load_start).as_secs_f64(),
-                    back.away.as_secs_f64(),
-                    back.welcomed
-                )
-            };
-            if c.game && !back.full_frame && r.unframed.len() < UNEXPECTED_KEPT {
-                let s = c.session.stats();
-                r.unframed.push(format!(
-                    "{}, epoch {}; its session: {} state frames, {} full frames asked",
-                    who(),
-                    c.session.epoch().0,
-                    s.state_frames,
-                    s.full_frames_asked
-                ));
-            }
-            if !back.resumed && r.unresumed.len() < UNEXPECTED_KEPT {
-                r.unresumed.push(format!(
-                    "{}, inputs after: {} refused (last {:?}), {} lost, {} awaiting; the last future reject: {}",
-                    who(),
-                    back.refused.0,
-                    back.refused.1.map(RejectReason::name),
-                    back.lost,
-                    c.session.pending_inputs(),
-                    c.last_future.as_deref().unwrap_or("none"),
-                ));
+        for c in &self.clients {
+            if let Some(back) = &c.returned {
+                back.tell(r, self.load_start, c);
             }
         }
     }
