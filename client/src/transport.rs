@@ -398,7 +398,6 @@ fn ask_scene(session: &::zenoh::Session, world: &WorldId, tx: SyncSender<Inbound
 /// A client's Zenoh side (see the module docs). Dropping it withdraws the presence.
 #[derive(Debug)]
 pub struct Connection {
-    session: ::zenoh::Session,
     world: WorldId,
     /// The client's input key, declared once: the server resolves it once rather than match the
     /// key of every message against its subscriptions.
@@ -412,6 +411,9 @@ pub struct Connection {
     linked: AtomicBool,
     _subscribers: Vec<::zenoh::pubsub::Subscriber<()>>,
     presence: std::sync::Mutex<Presence>,
+    /// Last, so that dropped, everything declared on it is undeclared before it closes (fields
+    /// drop in order; Zenoh 1.10 keeps what is undeclared after the close).
+    session: ::zenoh::Session,
 }
 
 /// The client's presence token, and when to declare it again while no welcome comes.
@@ -633,11 +635,13 @@ impl Connection {
     }
 
     /// Withdraws the presence (the server removes the avatar after its grace period) and closes
-    /// the session.
+    /// the session. Everything declared is undeclared before the close: Zenoh 1.10 keeps what is
+    /// undeclared after it.
     pub fn close(self) {
-        let Connection { session, _subscribers, presence, .. } = self;
+        let Connection { session, _subscribers, presence, input, .. } = self;
         drop(presence);
         drop(_subscribers);
+        drop(input);
         let _ = session.close().wait();
     }
 }
