@@ -43,6 +43,7 @@ function colorOf(cls) {
 }
 
 function applyState(f) {
+  const now = performance.now();
   if (f.full) {
     live.bodies.clear();
     live.synced = true;
@@ -54,14 +55,16 @@ function applyState(f) {
   for (const e of f.left) live.bodies.delete(e);
   for (const i of f.entered) {
     colorOf(i.class);
-    live.bodies.set(i.entity, { info: i, p: [0, 0, 0], v: [0, 0, 0], asleep: false });
+    live.bodies.set(i.entity, { info: i, p: [0, 0, 0], v: [0, 0, 0], asleep: false, at: now });
   }
+  // A frame carries only the bodies whose motion changed; the others fly on from their last
+  // sample at its velocity (PROTOCOL.md, "State streams"), so each keeps when it was sampled.
   for (const [e, p, v, asleep] of f.moved) {
     const b = live.bodies.get(e);
-    if (b) { b.p = p; b.v = v; b.asleep = asleep; }
+    if (b) { b.p = p; b.v = v; b.asleep = asleep; b.at = now; }
   }
   live.tick = f.tick;
-  live.at = performance.now();
+  live.at = now;
   if (!cam.fitted && live.bodies.size > 0) fit();
 }
 
@@ -134,10 +137,19 @@ function drawPlot(c, data, color, bars) {
 
 // --- the view -------------------------------------------------------------------------------
 
+// Where body `b` of `src` is drawn at `t` (ms): a live body carried from its sample at its
+// velocity, at most 150 ms past the newest frame; a paused or rewound one where it was.
+function placed(b, src, t = performance.now()) {
+  if (src !== live || b.asleep || b.at === undefined) return b.p;
+  const s = (Math.min(t, live.at + 150) - b.at) / 1000;
+  return [b.p[0] + b.v[0] * s, b.p[1] + b.v[1] * s, b.p[2] + b.v[2] * s];
+}
+
 function fit() {
   let lo = [Infinity, Infinity], hi = [-Infinity, -Infinity];
   for (const b of live.bodies.values()) {
-    const c = [b.p[0] + b.info.offset_m[0], b.p[2] + b.info.offset_m[2]];
+    const p = placed(b, live);
+    const c = [p[0] + b.info.offset_m[0], p[2] + b.info.offset_m[2]];
     const h = [b.info.half_extents_m[0], b.info.half_extents_m[2]];
     lo = [Math.min(lo[0], c[0] - h[0]), Math.min(lo[1], c[1] - h[1])];
     hi = [Math.max(hi[0], c[0] + h[0]), Math.max(hi[1], c[1] + h[1])];
@@ -174,8 +186,6 @@ function draw() {
   ctx.fillStyle = "#11151c";
   ctx.fillRect(0, 0, r.width, r.height);
   const src = shown();
-  // Between frames, bodies move on with their velocity (at most 150 ms).
-  const dt = src === live ? Math.min(0.15, (t0 - live.at) / 1000) : 0;
   let n = 0;
   // Static bodies first, then the moving ones over them.
   for (const pass of [true, false]) {
@@ -183,8 +193,9 @@ function draw() {
       if (b.info.fixed !== pass) continue;
       n++;
       const on = passes(b);
-      const x = b.p[0] + b.info.offset_m[0] + (b.asleep ? 0 : b.v[0] * dt);
-      const z = b.p[2] + b.info.offset_m[2] + (b.asleep ? 0 : b.v[2] * dt);
+      const p = placed(b, src, t0);
+      const x = p[0] + b.info.offset_m[0];
+      const z = p[2] + b.info.offset_m[2];
       const [sx, sz] = toScreen(x, z, r);
       const hx = b.info.half_extents_m[0] * cam.scale, hz = b.info.half_extents_m[2] * cam.scale;
       if (sx + hx < 0 || sz + hz < 0 || sx - hx > r.width || sz - hz > r.height) continue;
@@ -286,9 +297,11 @@ function pick(ev) {
   const r = canvas.getBoundingClientRect();
   const [x, z] = toWorld(ev.clientX - r.left, ev.clientY - r.top, r);
   let best = null, bestD = Infinity;
-  for (const [e, b] of shown().bodies) {
+  const src = shown();
+  for (const [e, b] of src.bodies) {
     if (b.info.fixed) continue;
-    const d = Math.hypot(b.p[0] - x, b.p[2] - z) - b.info.half_extents_m[0];
+    const p = placed(b, src);
+    const d = Math.hypot(p[0] - x, p[2] - z) - b.info.half_extents_m[0];
     if (d < bestD) { bestD = d; best = e; }
   }
   selected = bestD < 1.0 ? best : null;
@@ -301,7 +314,8 @@ function listSelected() {
   const b = shown().bodies.get(selected) || live.bodies.get(selected);
   $("selected").textContent = b
     ? `entity ${selected} · ${b.info.class}${b.info.owner !== null ? ` · client ${b.info.owner}` : ""} · ` +
-      `(${b.p.map((v) => v.toFixed(1)).join(", ")})${b.asleep ? " · asleep" : ""}`
+      `(${placed(b, shown().bodies.has(selected) ? shown() : live).map((v) => v.toFixed(1)).join(", ")})` +
+      `${b.asleep ? " · asleep" : ""}`
     : `entity ${selected} (gone)`;
   const items = [];
   for (let k = recent.length - 1; k >= 0 && items.length < 40; k--) {
@@ -326,7 +340,7 @@ $("pause").addEventListener("click", () => {
     return;
   }
   const copy = new Map();
-  for (const [e, b] of live.bodies) copy.set(e, { info: b.info, p: b.p.slice(), v: b.v.slice(), asleep: b.asleep });
+  for (const [e, b] of live.bodies) copy.set(e, { info: b.info, p: placed(b, live), v: b.v.slice(), asleep: b.asleep });
   frozen = { bodies: copy, tick: live.tick, synced: true };
   $("pause").textContent = "Resume";
   $("scrub").value = 0;

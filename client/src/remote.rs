@@ -17,10 +17,11 @@
 //!   When they pass apart (pushed over several ticks), drawn at their blend weighted by where `r`
 //!   lies between the samples: a continuous path instead of a jump;
 //! - after its last sample: carried forward at that sample's velocity. A delta carries a body
-//!   when its position or velocity moved more than 1 mm (1 mm/s) from what the stream last said,
-//!   or later when the byte budget held it back, so between its samples this is where the server
-//!   has it, up to the stream's newest tick; beyond that (frames late) it is extrapolated, for at
-//!   most [`RemoteConfig::max_extrapolation_s`], and then held;
+//!   when it is more than 1 mm from where its last sample, carried so, puts it (or its velocity
+//!   changed by 1 mm/s), or later when the byte budget held it back, so after its last sample
+//!   this is where the server has it, up to the stream's newest tick, however long ago the
+//!   sample came; beyond that tick (frames late) it is extrapolated, for at most
+//!   [`RemoteConfig::max_extrapolation_s`], and then held;
 //! - before its first sample (it has just entered the view, moving): carried back at that sample's
 //!   velocity, where the server had it (held at the sample instead, it would be drawn up to the
 //!   interpolation delay ahead of where it was: 0.5 m at 5 m/s), unless game logic teleported it

@@ -28,6 +28,8 @@ pub(super) struct HeldBody {
     /// Its index in the entries of the frame it was last built in.
     at: u32,
     motion: BodyMotion,
+    /// The tick of the frame that sent it `motion`.
+    sent: Tick,
     /// The [`Entry::info`] it was sent.
     info: u64,
     /// Frames it has changed without being sent.
@@ -49,9 +51,20 @@ pub(super) fn f32x3(v: DVec3) -> [f32; 3] {
     [v.x as f32, v.y as f32, v.z as f32]
 }
 
-fn changed(a: &BodyMotion, b: &BodyMotion) -> bool {
-    let far = |x: &[f32; 3], y: &[f32; 3], eps: f32| x.iter().zip(y).any(|(p, q)| (p - q).abs() > eps);
-    a.3 != b.3 || far(&a.1, &b.1, 1e-3) || far(&a.2, &b.2, 1e-3)
+/// How far, metres (and m/s), a body may be from what its receiver draws before it is sent again.
+const DRIFT: f64 = 1e-3;
+
+/// Whether a receiver that was sent `held` `elapsed_s` seconds ago would now draw the body more
+/// than [`DRIFT`] from `now` (in any axis), or with a velocity or sleep flag it no longer has. A
+/// receiver carries what it holds at its velocity (PROTOCOL.md, "State streams"), the same sum
+/// in the same precision as here, so a body on a straight path is not sent again until something
+/// changes its motion: the budget goes to the bodies that did.
+fn changed(held: &BodyMotion, now: &BodyMotion, elapsed_s: f64) -> bool {
+    let (p, v) = (|k: usize| f64::from(held.1[k]), |k: usize| f64::from(held.2[k]));
+    held.3 != now.3
+        || (0..3).any(|k| {
+            (p(k) + v(k) * elapsed_s - f64::from(now.1[k])).abs() > DRIFT || (v(k) - f64::from(now.2[k])).abs() > DRIFT
+        })
 }
 
 /// What can change in a body's info, as a hash (see [`Entry::info`]).
@@ -291,7 +304,7 @@ pub(super) fn build(
         } else if b.info != e.info {
             // Its class or game state changed: its info again, from the budget first.
             wants.push((0.0, e.motion.0, i, Want::Enter));
-        } else if changed(&b.motion, &e.motion) {
+        } else if changed(&b.motion, &e.motion, f64::from(cap.tick.0.wrapping_sub(b.sent.0)) * cap.config.dt) {
             wants.push((d / (1.0 + f64::from(b.waited)), e.motion.0, i, Want::Move(keep.len())));
             keep.push(b);
         } else {
@@ -335,10 +348,10 @@ pub(super) fn build(
         spend += cost;
         frame.moved.push(e.motion);
         match want {
-            Want::Move(k) => keep[k] = HeldBody { motion: e.motion, waited: 0, ..keep[k] },
+            Want::Move(k) => keep[k] = HeldBody { motion: e.motion, sent: cap.tick, waited: 0, ..keep[k] },
             Want::Enter => {
                 frame.entered.push(info(cap, e));
-                keep.push(HeldBody { at: i, motion: e.motion, info: e.info, waited: 0 });
+                keep.push(HeldBody { at: i, motion: e.motion, sent: cap.tick, info: e.info, waited: 0 });
             }
         }
     }
