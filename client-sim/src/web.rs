@@ -20,7 +20,7 @@ use std::io::Write;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{sync_channel, Receiver, RecvTimeoutError, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use zenoh::Wait;
 
 const INDEX: &str = include_str!("../web/index.html");
@@ -34,16 +34,19 @@ const PAGE_QUEUE: usize = 512;
 #[derive(Default)]
 struct Hub {
     pages: Vec<SyncSender<Arc<str>>>,
-    bodies: BTreeMap<EntityId, (BodyInfo, BodyMotion)>,
+    /// Each body's info, its last sample, and when that sample came.
+    bodies: BTreeMap<EntityId, (BodyInfo, BodyMotion, Instant)>,
     frame: Option<u32>,
     synced: bool,
     tick: Tick,
+    /// When the newest frame came.
+    at: Option<Instant>,
     stats: Option<Arc<str>>,
 }
 
 impl Hub {
-    /// Applies a state frame to the world held (PROTOCOL.md, "State streams").
-    fn apply(&mut self, f: &StateFrame) {
+    /// Applies a state frame, come at `now`, to the world held (PROTOCOL.md, "State streams").
+    fn apply(&mut self, f: &StateFrame, now: Instant) {
         if f.full {
             self.bodies.clear();
             self.synced = true;
@@ -52,6 +55,7 @@ impl Hub {
         }
         self.frame = Some(f.frame);
         self.tick = f.tick;
+        self.at = Some(now);
         if !self.synced {
             return;
         }
@@ -62,26 +66,33 @@ impl Hub {
         for m in &f.moved {
             match infos.remove(&m.0) {
                 Some(i) => {
-                    self.bodies.insert(m.0, (i.clone(), *m));
+                    self.bodies.insert(m.0, (i.clone(), *m, now));
                 }
                 None => {
                     if let Some(b) = self.bodies.get_mut(&m.0) {
-                        b.1 = *m;
+                        (b.1, b.2) = (*m, now);
                     }
                 }
             }
         }
     }
 
-    /// The world held, as a full frame numbered like the last one (the deltas after it apply).
+    /// The world held, as a full frame numbered like the last one (the deltas after it apply):
+    /// each body carried from its last sample at its velocity to the newest frame (a frame
+    /// carries only the bodies whose motion changed), by the time between their arrivals.
     fn full_frame(&self) -> Option<StateFrame> {
         let frame = self.frame.filter(|_| self.synced)?;
+        let at = self.at?;
+        let carried = |(_, m, came): &(BodyInfo, BodyMotion, Instant)| {
+            let s = at.saturating_duration_since(*came).as_secs_f32();
+            BodyMotion(m.0, std::array::from_fn(|k| m.1[k] + m.2[k] * s), m.2, m.3)
+        };
         Some(StateFrame {
             tick: self.tick,
             frame,
             full: true,
             entered: self.bodies.values().map(|b| b.0.clone()).collect(),
-            moved: self.bodies.values().map(|b| b.1).collect(),
+            moved: self.bodies.values().map(carried).collect(),
             left: Vec::new(),
             deferred: 0,
             centre: None,
@@ -130,7 +141,7 @@ impl Viewer {
                     let json: Arc<str> = json.into();
                     let mut h = hub.lock().unwrap_or_else(|p| p.into_inner());
                     match &msg {
-                        ServerMessage::State(f) => h.apply(f),
+                        ServerMessage::State(f) => h.apply(f, Instant::now()),
                         ServerMessage::Stats(_) => h.stats = Some(json.clone()),
                         _ => {}
                     }
@@ -242,13 +253,17 @@ mod tests {
         }
     }
 
-    fn frame(n: u32, full: bool, entered: &[u32], moved: &[(u32, f32)], left: &[u32]) -> StateFrame {
+    /// Frame `n` (at tick `n`), `moved` as (entity, x, x velocity).
+    fn frame(n: u32, full: bool, entered: &[u32], moved: &[(u32, f32, f32)], left: &[u32]) -> StateFrame {
         StateFrame {
             tick: Tick(n),
             frame: n,
             full,
             entered: entered.iter().map(|e| info(*e)).collect(),
-            moved: moved.iter().map(|(e, x)| BodyMotion(EntityId(*e), [*x, 0.0, 0.0], [0.0; 3], false)).collect(),
+            moved: moved
+                .iter()
+                .map(|(e, x, v)| BodyMotion(EntityId(*e), [*x, 0.0, 0.0], [*v, 0.0, 0.0], false))
+                .collect(),
             left: left.iter().map(|e| EntityId(*e)).collect(),
             deferred: 0,
             centre: None,
@@ -258,19 +273,23 @@ mod tests {
 
     #[test]
     fn the_hub_follows_the_stream_and_waits_for_a_full_frame_after_a_gap() {
+        let t0 = Instant::now();
+        let at = |ms: u64| t0 + Duration::from_millis(ms);
         let mut h = Hub::default();
         assert!(h.full_frame().is_none(), "nothing to show before a full frame");
-        h.apply(&frame(4, false, &[1], &[(1, 1.0)], &[]));
+        h.apply(&frame(4, false, &[1], &[(1, 1.0, 0.0)], &[]), at(0));
         assert!(h.full_frame().is_none(), "a delta first is not enough");
-        h.apply(&frame(5, true, &[1, 2], &[(1, 1.0), (2, 2.0)], &[]));
-        h.apply(&frame(6, false, &[3], &[(3, 3.0), (1, 1.5)], &[2]));
+        h.apply(&frame(5, true, &[1, 2], &[(1, 1.0, 2.0), (2, 2.0, 0.0)], &[]), at(50));
+        // Body 1 flies on at 2 m/s: the next frame does not carry it, and a page that comes
+        // after it is shown it where it flew to.
+        h.apply(&frame(6, false, &[3], &[(3, 3.0, 0.0)], &[2]), at(550));
         let f = h.full_frame().unwrap();
         assert_eq!(f.frame, 6);
-        assert_eq!(f.moved.iter().map(|m| (m.0 .0, m.1[0])).collect::<Vec<_>>(), vec![(1, 1.5), (3, 3.0)]);
+        assert_eq!(f.moved.iter().map(|m| (m.0 .0, m.1[0])).collect::<Vec<_>>(), vec![(1, 2.0), (3, 3.0)]);
         // Frame 8 after 6: a gap; nothing more until a full frame.
-        h.apply(&frame(8, false, &[], &[(1, 9.0)], &[]));
+        h.apply(&frame(8, false, &[], &[(1, 9.0, 0.0)], &[]), at(600));
         assert!(h.full_frame().is_none());
-        h.apply(&frame(9, true, &[7], &[(7, 7.0)], &[]));
+        h.apply(&frame(9, true, &[7], &[(7, 7.0, 0.0)], &[]), at(650));
         assert_eq!(h.full_frame().unwrap().entered.len(), 1);
     }
 }

@@ -15,7 +15,11 @@
 //!   it bounced, the two carried paths meet where it collided (within [`CROSSING_M`]): drawn on
 //!   `a`'s path before the meeting and `b`'s after, the server's motion again, corner and all.
 //!   When they pass apart (pushed over several ticks), drawn at their blend weighted by where `r`
-//!   lies between the samples: a continuous path instead of a jump;
+//!   lies between the samples: a continuous path instead of a jump. A frame carries a body only
+//!   when its motion changed (the stream is dead-reckoned), so `a` may be many frames before
+//!   `b`: up to the frame just before `b`'s, when that frame held nothing back for the budget,
+//!   the stream vouched that the body was on `a`'s path, and it is drawn there; the meeting is
+//!   looked for, and the blend made, after that frame only ([`Sample::vouched`]);
 //! - after its last sample: carried forward at that sample's velocity. A delta carries a body
 //!   when it is more than 1 mm from where its last sample, carried so, puts it (or its velocity
 //!   changed by 1 mm/s), or later when the byte budget held it back, so after its last sample
@@ -88,6 +92,10 @@ pub struct Sample {
     pub asleep: bool,
     /// The tick of the body's last teleport as of this sample (see [`BodyInfo::teleported`]).
     pub teleported: Option<Tick>,
+    /// Up to this tick the body was on the previous sample's path: the tick of the frame just
+    /// before the one that carried this sample, when that frame held nothing back (`deferred`
+    /// 0: every body whose motion changed went out in it); `None` when not known.
+    pub vouched: Option<Tick>,
 }
 
 impl Sample {
@@ -161,13 +169,22 @@ pub struct RemoteWorld {
     /// The frame number the next delta must carry; `None` until a full frame (or after a gap).
     expected: Option<u32>,
     newest: Option<Tick>,
+    /// The tick of the last frame applied, when it held nothing back (see [`Sample::vouched`]).
+    clean: Option<Tick>,
     stats: RemoteStats,
 }
 
 impl RemoteWorld {
     /// An empty remote world; it shows bodies from the first full frame on.
     pub fn new(cfg: RemoteConfig) -> RemoteWorld {
-        RemoteWorld { cfg, bodies: BTreeMap::new(), expected: None, newest: None, stats: RemoteStats::default() }
+        RemoteWorld {
+            cfg,
+            bodies: BTreeMap::new(),
+            expected: None,
+            newest: None,
+            clean: None,
+            stats: RemoteStats::default(),
+        }
     }
 
     /// The configuration.
@@ -218,6 +235,9 @@ impl RemoteWorld {
             self.stats.ignored += 1;
             return Applied::Stale;
         }
+        // The frame before this one vouches for the paths up to its tick if it came just before
+        // (no gap) and held nothing back.
+        let vouched = self.clean.filter(|_| self.expected == Some(frame.frame));
         if !frame.full {
             match self.expected {
                 Some(n) if frame.frame == n => {}
@@ -249,7 +269,7 @@ impl RemoteWorld {
             }
         }
         for m in &frame.moved {
-            self.record(frame.tick, m);
+            self.record(frame.tick, m, vouched);
         }
         for e in &frame.left {
             if self.bodies.remove(e).is_none() {
@@ -258,11 +278,12 @@ impl RemoteWorld {
         }
         self.expected = Some(frame.frame.wrapping_add(1));
         self.newest = self.newest.max(Some(frame.tick));
+        self.clean = (frame.deferred == 0).then_some(frame.tick);
         self.stats.frames += 1;
         Applied::Applied
     }
 
-    fn record(&mut self, tick: Tick, m: &BodyMotion) {
+    fn record(&mut self, tick: Tick, m: &BodyMotion, vouched: Option<Tick>) {
         let BodyMotion(entity, p, v, asleep) = *m;
         let Some(b) = self.bodies.get_mut(&entity) else {
             self.stats.unknown_bodies += 1;
@@ -274,7 +295,8 @@ impl RemoteWorld {
             return;
         }
         let teleported = b.info.teleported;
-        let sample = Sample { tick, position: p.map(f64::from), velocity: v.map(f64::from), asleep, teleported };
+        let sample =
+            Sample { tick, position: p.map(f64::from), velocity: v.map(f64::from), asleep, teleported, vouched };
         // Samples stay in tick order; one for a tick already held replaces it.
         while b.samples.back().is_some_and(|s| s.tick >= tick) {
             b.samples.pop_back();
@@ -330,16 +352,22 @@ impl RemoteWorld {
                 (std::array::from_fn(|k| pa[k] + (pn[k] - pa[k]) * f), a.velocity, true)
             }
             (Some(a), Some(n)) => {
-                let (ta, tn) = (f64::from(a.tick.0), f64::from(n.tick.0));
+                // Up to the frame before `n`'s, the stream vouched for `a`'s path.
+                let (lo, tn) = (changed_after(a, n), f64::from(n.tick.0));
                 let (pa, pn) = (a.at(r, dt), n.at(r, dt));
-                match crossing(a, n, dt) {
-                    // The two carried paths meet where it collided: each drawn on its side.
-                    Some(tc) if r <= tc => (pa, a.velocity, false),
-                    Some(_) => (pn, n.velocity, false),
-                    // They pass apart (pushed, not bounced): blended, a continuous path.
-                    None => {
-                        let f = (r - ta) / (tn - ta);
-                        (std::array::from_fn(|k| pa[k] + (pn[k] - pa[k]) * f), a.velocity, false)
+                if r <= lo {
+                    (pa, a.velocity, true)
+                } else {
+                    match crossing(a, n, lo, dt) {
+                        // The two carried paths meet where it collided: each drawn on its side.
+                        Some(tc) if r <= tc => (pa, a.velocity, false),
+                        Some(_) => (pn, n.velocity, false),
+                        // They pass apart (pushed, not bounced): blended from where the stream
+                        // last vouched for `a`'s path, a continuous path.
+                        None => {
+                            let f = (r - lo) / (tn - lo);
+                            (std::array::from_fn(|k| pa[k] + (pn[k] - pa[k]) * f), a.velocity, false)
+                        }
                     }
                 }
             }
@@ -354,10 +382,18 @@ impl RemoteWorld {
 /// drawn on each path on its side of the meeting, a step of at most this.
 pub const CROSSING_M: f64 = 0.01;
 
-/// The tick between samples `a` and `n` (whose velocities differ) at which `a` carried forward
-/// and `n` carried back come closest, if they come within [`CROSSING_M`] there.
-fn crossing(a: &Sample, n: &Sample, dt: f64) -> Option<f64> {
-    let (ta, tn) = (f64::from(a.tick.0), f64::from(n.tick.0));
+/// The tick after which the motion changed between samples `a` and `n`: the last the stream
+/// vouched for `a`'s path ([`Sample::vouched`]), or `a`'s own.
+fn changed_after(a: &Sample, n: &Sample) -> f64 {
+    let ta = f64::from(a.tick.0);
+    n.vouched.map_or(ta, |v| f64::from(v.0).clamp(ta, f64::from(n.tick.0)))
+}
+
+/// The tick between `from` and sample `n` (samples `a` and `n` have different velocities) at
+/// which `a` carried forward and `n` carried back come closest, if they come within
+/// [`CROSSING_M`] there.
+fn crossing(a: &Sample, n: &Sample, from: f64, dt: f64) -> Option<f64> {
+    let (ta, tn) = (from, f64::from(n.tick.0));
     let (pa, pn) = (a.at(ta, dt), n.at(ta, dt));
     // The gap between the two paths, linear in the tick: d(t) = d0 + dv (t - ta).
     let d0: [f64; 3] = std::array::from_fn(|k| pa[k] - pn[k]);
@@ -504,6 +540,43 @@ mod tests {
             assert!((now - last).abs() < 0.05, "a continuous blend: {last} -> {now} at {k}");
             last = now;
         }
+    }
+
+    /// A dead-reckoned stream: a body flying straight is not carried again until something
+    /// changes it, so its samples may be many frames apart. Up to the frame before the one that
+    /// carried the change (when that frame held nothing back) it is drawn on its old path, where
+    /// the server had it; the change is drawn between that frame and the next sample.
+    #[test]
+    fn a_change_is_drawn_after_the_last_frame_that_vouched_for_the_old_path() {
+        let push = |deferred: u32| {
+            let mut w = RemoteWorld::new(RemoteConfig::new(HZ));
+            // 6.4 m/s along x (0.1 m a tick); frames at ticks 4 and 8 do not carry it; by tick 12
+            // it was pushed along y (after tick 8 its paths are 0.4 m apart or more: no meeting).
+            w.apply(&frame(0, 0, true, &[(1, [0.0; 3], [6.4, 0.0, 0.0])]));
+            w.apply(&frame(1, 4, false, &[]));
+            w.apply(&StateFrame { deferred, ..frame(2, 8, false, &[]) });
+            w.apply(&frame(3, 12, false, &[(1, [1.2, 0.8, 0.0], [6.4, 6.4, 0.0])]));
+            w
+        };
+        let w = push(0);
+        for r in [1.0, 5.0, 8.0] {
+            let d = w.draw_one(EntityId(1), r).unwrap();
+            let old = [0.1 * r, 0.0, 0.0];
+            assert!((0..3).all(|k| (d.position[k] - old[k]).abs() < 1e-6), "tick {r}: {:?}", d.position);
+            assert!(d.steady, "tick {r}: the stream vouched for it");
+        }
+        // Between ticks 8 and 12, blended from the old path onto the new: half way at tick 10.
+        let d = w.draw_one(EntityId(1), 10.0).unwrap();
+        let (old, new) = ([1.0, 0.0], [1.0, 0.8 - 6.4 * 2.0 / 64.0]);
+        for k in 0..2 {
+            assert!((d.position[k] - (old[k] + new[k]) / 2.0).abs() < 1e-6, "{:?}", d.position);
+        }
+        assert!(!d.steady);
+        // The frame at tick 8 held bodies back: the change may have come any time after tick 0
+        // (and the two paths cross at tick 4: taken for a bounce there).
+        let w = push(1);
+        let d = w.draw_one(EntityId(1), 5.0).unwrap();
+        assert!(!d.steady && (d.position[1] - 0.1).abs() < 1e-6, "on the new path: {:?}", d.position);
     }
 
     /// Frames late: carried forward by velocity up to the bound, then held; the flag says so.

@@ -110,8 +110,9 @@ def main():
             done.set()
 
     # The state stream (PROTOCOL.md, "State streams"): the bodies near our avatar. Keep a map
-    # entity -> motion; full frames replace it, deltas patch it, and after a gap in the frame
-    # numbers we wait for the next full frame.
+    # entity -> motion and the tick it came at (a body is where that motion, carried at its
+    # velocity, puts it until a frame carries it again); full frames replace it, deltas patch it,
+    # and after a gap in the frame numbers we wait for the next full frame.
     stream = {"bodies": {}, "info": {}, "frame": None, "synced": False, "frames": 0, "gaps": 0, "printed": 0}
 
     def on_state(sample):
@@ -135,7 +136,7 @@ def main():
         for info in f["entered"]:
             stream["info"][info["entity"]] = info
         for entity, position, velocity, asleep in f["moved"]:
-            stream["bodies"][entity] = (position, velocity, asleep)
+            stream["bodies"][entity] = (f["tick"], position, velocity, asleep)
         if f["full"] and stream["printed"] < 2:
             stream["printed"] += 1
             classes = {}

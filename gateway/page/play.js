@@ -2239,15 +2239,16 @@ var at = (s, t, dt) => {
 };
 var mix = (a, b, f2) => [a[0] + (b[0] - a[0]) * f2, a[1] + (b[1] - a[1]) * f2, a[2] + (b[2] - a[2]) * f2];
 var CROSSING_M = 0.01;
-function crossing(a, n, dt) {
-  const pa = at(a, a.tick, dt);
-  const pn = at(n, a.tick, dt);
+var changedAfter = (a, n) => n.vouched === void 0 ? a.tick : Math.min(Math.max(n.vouched, a.tick), n.tick);
+function crossing(a, n, from, dt) {
+  const pa = at(a, from, dt);
+  const pn = at(n, from, dt);
   const d0 = [pa[0] - pn[0], pa[1] - pn[1], pa[2] - pn[2]];
   const dv = [0, 1, 2].map((k) => (a.velocity[k] - n.velocity[k]) * dt);
   const vv = dv.reduce((s, x) => s + x * x, 0);
   if (vv === 0) return null;
-  const t = Math.min(Math.max(a.tick - (d0[0] * dv[0] + d0[1] * dv[1] + d0[2] * dv[2]) / vv, a.tick), n.tick);
-  const gap = Math.hypot(...[0, 1, 2].map((k) => d0[k] + dv[k] * (t - a.tick)));
+  const t = Math.min(Math.max(from - (d0[0] * dv[0] + d0[1] * dv[1] + d0[2] * dv[2]) / vv, from), n.tick);
+  const gap = Math.hypot(...[0, 1, 2].map((k) => d0[k] + dv[k] * (t - from)));
   return gap <= CROSSING_M ? t : null;
 }
 var RemoteWorld = class {
@@ -2258,6 +2259,8 @@ var RemoteWorld = class {
   bodies = /* @__PURE__ */ new Map();
   expected = null;
   newest = null;
+  /** The tick of the last frame applied, when it held nothing back. */
+  clean = void 0;
   stats = { frames: 0, fullFrames: 0, gaps: 0, ignored: 0, overCapacity: 0, unknownBodies: 0 };
   get newestTick() {
     return this.newest;
@@ -2283,6 +2286,7 @@ var RemoteWorld = class {
       this.stats.ignored++;
       return "stale";
     }
+    const vouched = this.expected === frame.frame ? this.clean : void 0;
     if (!frame.full) {
       if (this.expected === null) {
         this.stats.ignored++;
@@ -2305,21 +2309,22 @@ var RemoteWorld = class {
       else if (this.bodies.size < this.config.maxBodies) this.bodies.set(info.entity, { info, samples: [] });
       else this.stats.overCapacity++;
     }
-    for (const m of frame.moved) this.record(frame.tick, m);
+    for (const m of frame.moved) this.record(frame.tick, m, vouched);
     for (const e of frame.left) if (!this.bodies.delete(e)) this.stats.unknownBodies++;
     this.expected = (frame.frame + 1) % 2 ** 32;
     this.newest = Math.max(this.newest ?? frame.tick, frame.tick);
+    this.clean = frame.deferred === 0 ? frame.tick : void 0;
     this.stats.frames++;
     return "applied";
   }
-  record(tick, [entity, p, v, asleep]) {
+  record(tick, [entity, p, v, asleep], vouched) {
     const b = this.bodies.get(entity);
     if (!b || ![...p, ...v].every(Number.isFinite)) {
       this.stats.unknownBodies++;
       return;
     }
     while (b.samples.length > 0 && b.samples[b.samples.length - 1].tick >= tick) b.samples.pop();
-    b.samples.push({ tick, position: [...p], velocity: [...v], asleep, teleported: b.info.teleported });
+    b.samples.push({ tick, position: [...p], velocity: [...v], asleep, teleported: b.info.teleported, vouched });
     while (b.samples.length > Math.max(this.config.history, 1)) b.samples.shift();
   }
   /** Every body at `renderTick`. */
@@ -2353,14 +2358,16 @@ var RemoteWorld = class {
     } else if (!n) {
       [position, velocity, steady] = [at(a, r, dt), a.velocity, r <= newest];
     } else {
-      const f2 = (r - a.tick) / (n.tick - a.tick);
       const pa = at(a, r, dt);
       const pn = at(n, r, dt);
+      const lo = changedAfter(a, n);
       if (a.velocity.every((x, k) => x === n.velocity[k])) {
-        [position, velocity, steady] = [mix(pa, pn, f2), a.velocity, true];
+        [position, velocity, steady] = [mix(pa, pn, (r - a.tick) / (n.tick - a.tick)), a.velocity, true];
+      } else if (r <= lo) {
+        [position, velocity, steady] = [pa, a.velocity, true];
       } else {
-        const tc = crossing(a, n, dt);
-        if (tc === null) [position, velocity] = [mix(pa, pn, f2), a.velocity];
+        const tc = crossing(a, n, lo, dt);
+        if (tc === null) [position, velocity] = [mix(pa, pn, (r - lo) / (n.tick - lo)), a.velocity];
         else [position, velocity] = r <= tc ? [pa, a.velocity] : [pn, n.velocity];
       }
     }

@@ -3,8 +3,9 @@
 //! What the server publishes for a player arrives on Zenoh's threads whatever the browser's
 //! pace; the queue holds it until the connection's writer sends it. A browser that reads too
 //! slowly (a background tab, a stalled phone) must not grow the gateway's memory, so the queue
-//! has a fixed bound, and when it is reached state frames go first: they are superseded by the
-//! next ones, and a client that misses one asks for a full frame (PROTOCOL.md, "State streams").
+//! has a fixed bound, and when it is reached state frames go first: a client that misses one
+//! sees the gap in the frame numbers and asks for a full frame (PROTOCOL.md, "State streams"),
+//! which brings it back to the world as it is.
 //! Acks, rejects and events are not dropped: when they no longer fit after every state frame
 //! was dropped, the connection is closed `too_slow` (the player's client reconnects and resumes
 //! within the grace period).

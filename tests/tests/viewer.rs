@@ -130,8 +130,8 @@ fn the_viewer_draws_the_arena_in_chromium() {
     let clicked = b.eval(
         "(() => { const r = document.getElementById('view').getBoundingClientRect(); \
            const e = [...recent].reverse().find((e) => live.bodies.has(e.a) && !live.bodies.get(e.a).info.fixed); \
-           if (!e) return 'no event'; const body = live.bodies.get(e.a); \
-           const [x, y] = toScreen(body.p[0], body.p[2], r); \
+           if (!e) return 'no event'; const p = placed(live.bodies.get(e.a), live); \
+           const [x, y] = toScreen(p[0], p[2], r); \
            const at = { clientX: r.left + x, clientY: r.top + y, bubbles: true }; \
            document.getElementById('view').dispatchEvent(new MouseEvent('mousedown', at)); \
            window.dispatchEvent(new MouseEvent('mouseup', at)); return String(e.a); })()",

@@ -37,6 +37,9 @@ interface Sample {
   velocity: Vec3;
   asleep: boolean;
   teleported: number | undefined;
+  /** Up to this tick the body was on the previous sample's path: the tick of the frame just
+   * before the one that carried this sample, when that frame held nothing back. */
+  vouched: number | undefined;
 }
 
 const at = (s: Sample, t: number, dt: number): Vec3 => {
@@ -49,16 +52,21 @@ const mix = (a: Vec3, b: Vec3, f: number): Vec3 => [a[0] + (b[0] - a[0]) * f, a[
 /** Carried paths closer than this where they pass are taken to meet (a collision), metres. */
 export const CROSSING_M = 0.01;
 
-/** The tick between samples `a` and `n` at which their carried paths come within CROSSING_M. */
-function crossing(a: Sample, n: Sample, dt: number): number | null {
-  const pa = at(a, a.tick, dt);
-  const pn = at(n, a.tick, dt);
+/** The tick after which the motion changed between samples `a` and `n`. */
+const changedAfter = (a: Sample, n: Sample): number =>
+  n.vouched === undefined ? a.tick : Math.min(Math.max(n.vouched, a.tick), n.tick);
+
+/** The tick between `from` and sample `n` at which the carried paths of `a` and `n` come within
+ * CROSSING_M. */
+function crossing(a: Sample, n: Sample, from: number, dt: number): number | null {
+  const pa = at(a, from, dt);
+  const pn = at(n, from, dt);
   const d0 = [pa[0] - pn[0], pa[1] - pn[1], pa[2] - pn[2]];
   const dv = [0, 1, 2].map((k) => (a.velocity[k]! - n.velocity[k]!) * dt);
   const vv = dv.reduce((s, x) => s + x * x, 0);
   if (vv === 0) return null;
-  const t = Math.min(Math.max(a.tick - (d0[0]! * dv[0]! + d0[1]! * dv[1]! + d0[2]! * dv[2]!) / vv, a.tick), n.tick);
-  const gap = Math.hypot(...[0, 1, 2].map((k) => d0[k]! + dv[k]! * (t - a.tick)));
+  const t = Math.min(Math.max(from - (d0[0]! * dv[0]! + d0[1]! * dv[1]! + d0[2]! * dv[2]!) / vv, from), n.tick);
+  const gap = Math.hypot(...[0, 1, 2].map((k) => d0[k]! + dv[k]! * (t - from)));
   return gap <= CROSSING_M ? t : null;
 }
 
@@ -81,6 +89,8 @@ export class RemoteWorld {
   private readonly bodies = new Map<number, { info: BodyInfo; samples: Sample[] }>();
   private expected: number | null = null;
   private newest: number | null = null;
+  /** The tick of the last frame applied, when it held nothing back. */
+  private clean: number | undefined = undefined;
   readonly stats = { frames: 0, fullFrames: 0, gaps: 0, ignored: 0, overCapacity: 0, unknownBodies: 0 };
 
   constructor(readonly config: RemoteConfig) {}
@@ -113,6 +123,9 @@ export class RemoteWorld {
       this.stats.ignored++;
       return "stale";
     }
+    // The frame before vouches for the paths up to its tick if it came just before and held
+    // nothing back.
+    const vouched = this.expected === frame.frame ? this.clean : undefined;
     if (!frame.full) {
       if (this.expected === null) {
         this.stats.ignored++;
@@ -135,22 +148,23 @@ export class RemoteWorld {
       else if (this.bodies.size < this.config.maxBodies) this.bodies.set(info.entity, { info, samples: [] });
       else this.stats.overCapacity++;
     }
-    for (const m of frame.moved) this.record(frame.tick, m);
+    for (const m of frame.moved) this.record(frame.tick, m, vouched);
     for (const e of frame.left) if (!this.bodies.delete(e)) this.stats.unknownBodies++;
     this.expected = (frame.frame + 1) % 2 ** 32;
     this.newest = Math.max(this.newest ?? frame.tick, frame.tick);
+    this.clean = frame.deferred === 0 ? frame.tick : undefined;
     this.stats.frames++;
     return "applied";
   }
 
-  private record(tick: number, [entity, p, v, asleep]: BodyMotion): void {
+  private record(tick: number, [entity, p, v, asleep]: BodyMotion, vouched: number | undefined): void {
     const b = this.bodies.get(entity);
     if (!b || ![...p, ...v].every(Number.isFinite)) {
       this.stats.unknownBodies++;
       return;
     }
     while (b.samples.length > 0 && b.samples[b.samples.length - 1]!.tick >= tick) b.samples.pop();
-    b.samples.push({ tick, position: [...p], velocity: [...v], asleep, teleported: b.info.teleported });
+    b.samples.push({ tick, position: [...p], velocity: [...v], asleep, teleported: b.info.teleported, vouched });
     while (b.samples.length > Math.max(this.config.history, 1)) b.samples.shift();
   }
 
@@ -186,14 +200,17 @@ export class RemoteWorld {
     } else if (!n) {
       [position, velocity, steady] = [at(a, r, dt), a.velocity, r <= newest];
     } else {
-      const f = (r - a.tick) / (n.tick - a.tick);
       const pa = at(a, r, dt);
       const pn = at(n, r, dt);
+      const lo = changedAfter(a, n);
       if (a.velocity.every((x, k) => x === n.velocity[k])) {
-        [position, velocity, steady] = [mix(pa, pn, f), a.velocity, true];
+        [position, velocity, steady] = [mix(pa, pn, (r - a.tick) / (n.tick - a.tick)), a.velocity, true];
+      } else if (r <= lo) {
+        // Up to the frame before n's the stream vouched for a's path.
+        [position, velocity, steady] = [pa, a.velocity, true];
       } else {
-        const tc = crossing(a, n, dt);
-        if (tc === null) [position, velocity] = [mix(pa, pn, f), a.velocity];
+        const tc = crossing(a, n, lo, dt);
+        if (tc === null) [position, velocity] = [mix(pa, pn, (r - lo) / (n.tick - lo)), a.velocity];
         else [position, velocity] = r <= tc ? [pa, a.velocity] : [pn, n.velocity];
       }
     }

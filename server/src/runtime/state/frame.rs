@@ -246,8 +246,13 @@ impl Marks {
 
 #[derive(Clone, Copy, Debug)]
 enum Want {
+    /// New to the receiver (or everything, on a full frame).
     Enter,
+    /// Held (at this index of what it keeps), its motion changed.
     Move(usize),
+    /// Held (at this index), its info changed: sent whole again. Held back, it stays held with
+    /// what the receiver has, so it is still said to leave if it leaves.
+    Again(usize),
 }
 
 /// The frame that brings `held` to the bodies of `cands` (`(priority distance, entry)`, in any
@@ -303,7 +308,8 @@ pub(super) fn build(
             wants.push((d, e.motion.0, i, Want::Enter));
         } else if b.info != e.info {
             // Its class or game state changed: its info again, from the budget first.
-            wants.push((0.0, e.motion.0, i, Want::Enter));
+            wants.push((0.0, e.motion.0, i, Want::Again(keep.len())));
+            keep.push(b);
         } else if changed(&b.motion, &e.motion, f64::from(cap.tick.0.wrapping_sub(b.sent.0)) * cap.config.dt) {
             wants.push((d / (1.0 + f64::from(b.waited)), e.motion.0, i, Want::Move(keep.len())));
             keep.push(b);
@@ -333,13 +339,13 @@ pub(super) fn build(
     for &(_, _, i, want) in &wants {
         let e = &entries[i as usize];
         let cost = match want {
-            Want::Enter => info_bytes(cap, e) + MOTION_BYTES,
+            Want::Enter | Want::Again(_) => info_bytes(cap, e) + MOTION_BYTES,
             Want::Move(_) => MOTION_BYTES,
         };
         if let Some(b) = budget {
             if (spend + cost) as f64 > b {
                 frame.deferred += 1;
-                if let Want::Move(k) = want {
+                if let Want::Move(k) | Want::Again(k) = want {
                     keep[k].waited = keep[k].waited.saturating_add(1);
                 }
                 continue;
@@ -349,6 +355,10 @@ pub(super) fn build(
         frame.moved.push(e.motion);
         match want {
             Want::Move(k) => keep[k] = HeldBody { motion: e.motion, sent: cap.tick, waited: 0, ..keep[k] },
+            Want::Again(k) => {
+                frame.entered.push(info(cap, e));
+                keep[k] = HeldBody { motion: e.motion, sent: cap.tick, info: e.info, waited: 0, ..keep[k] };
+            }
             Want::Enter => {
                 frame.entered.push(info(cap, e));
                 keep.push(HeldBody { at: i, motion: e.motion, sent: cap.tick, info: e.info, waited: 0 });

@@ -612,6 +612,31 @@ mod tests {
         );
     }
 
+    /// A held body whose info changed is sent whole again; held back by the budget, the
+    /// receiver still has it, so when it leaves it is said to leave.
+    #[test]
+    fn a_body_whose_info_waits_for_the_budget_is_still_said_to_leave() {
+        let (mut w, watchers) = arena(1);
+        let mut s = Streams::new(
+            WorldId::new("arena").unwrap(),
+            StateOptions { bytes_per_s: 1 << 24, ..opts() },
+            Encoding::MsgPack,
+        );
+        let f0 = decoded(&s.frames(&Capture::of(&w, watchers.clone()), false, true)[0]);
+        let avatar = watchers[0].avatar;
+        let near = f0.moved.iter().find(|m| m.0 != avatar && w.bodies.slot(m.0).is_some()).unwrap().0;
+        let slot = w.bodies.slot(near).unwrap();
+        w.bodies.set_game(slot, impact_protocol::GameState([("health".to_string(), 75.0)].into()));
+        // A budget too small for its info this frame.
+        s.opts.bytes_per_s = 300 * s.opts.hz;
+        s.clients.get_mut(&ClientId(1)).unwrap().tokens = 0.0;
+        let f1 = decoded(&s.frames(&Capture::of(&w, watchers.clone()), false, true)[0]);
+        assert!(!f1.full && f1.deferred > 0 && f1.entered.iter().all(|i| i.entity != near), "{f1:?}");
+        w.bodies.pos[slot] = DVec3::new(28.0, 18.0, 28.0);
+        let f2 = decoded(&s.frames(&Capture::of(&w, watchers), false, true)[0]);
+        assert_eq!(f2.left, vec![near]);
+    }
+
     #[test]
     fn a_body_that_leaves_the_area_is_said_to_leave() {
         let (mut w, watchers) = arena(1);
