@@ -77,13 +77,25 @@ impl FromStr for Encoding {
 /// [`decode`] would refuse (JSON has no representation for NaN, and a client must not have to
 /// guess what `null` meant).
 pub fn encode<T: Serialize + Validate>(msg: &T, encoding: Encoding) -> Result<Vec<u8>, ProtocolError> {
+    let mut out = Vec::new();
+    encode_into(msg, encoding, &mut out)?;
+    Ok(out)
+}
+
+/// [`encode`] onto the end of `out`: a caller that knows about how large the message is gives
+/// the room ahead (the server's state frames, each bounded by its budget's estimate), so the
+/// bytes are not grown and copied as they are written. On an error `out` may hold part of it.
+pub fn encode_into<T: Serialize + Validate>(
+    msg: &T,
+    encoding: Encoding,
+    out: &mut Vec<u8>,
+) -> Result<(), ProtocolError> {
     msg.validate()?;
     match encoding {
-        Encoding::MsgPack => rmp_serde::to_vec_named(msg)
+        Encoding::MsgPack => rmp_serde::encode::write_named(out, msg)
             .map_err(|e| ProtocolError::Malformed { encoding: "msgpack", detail: e.to_string() }),
-        Encoding::Json => {
-            serde_json::to_vec(msg).map_err(|e| ProtocolError::Malformed { encoding: "json", detail: e.to_string() })
-        }
+        Encoding::Json => serde_json::to_writer(out, msg)
+            .map_err(|e| ProtocolError::Malformed { encoding: "json", detail: e.to_string() }),
     }
 }
 

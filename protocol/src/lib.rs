@@ -37,7 +37,7 @@ pub mod state;
 pub mod users;
 pub mod validate;
 
-pub use codec::{decode, decode_unchecked, encode, input_header, Encoding};
+pub use codec::{decode, decode_unchecked, encode, encode_into, input_header, Encoding};
 pub use error::ProtocolError;
 pub use event::{CollisionEvent, EventKey, EventStatus, Phase, Response};
 pub use ids::{ClientId, EntityId, Epoch, Stamp, Tick, WorldId};

@@ -111,7 +111,10 @@ impl ShapeSpec {
 
 /// A game state's bounds: a few names of a few bytes, finite values.
 fn game_state(g: &crate::GameState, path: &dyn Fn() -> String) -> Result<(), ProtocolError> {
-    count(g.0.len(), MAX_GAME_STATE_VALUES, &path())?;
+    // The path is written only for an error: every body of every state frame passes here.
+    if g.0.len() > MAX_GAME_STATE_VALUES {
+        count(g.0.len(), MAX_GAME_STATE_VALUES, &path())?;
+    }
     for (k, v) in &g.0 {
         if k.is_empty() || k.len() > MAX_GAME_STATE_NAME_LEN {
             return Err(ProtocolError::OutOfRange {

@@ -9,7 +9,7 @@
 use super::{Capture, Entry, Publish, Src};
 use glam::DVec3;
 use impact_protocol::{
-    encode, AvatarState, AvatarTouch, BodyInfo, BodyMotion, BodyShape, ClientId, Encoding, EntityId, GameState,
+    encode_into, AvatarState, AvatarTouch, BodyInfo, BodyMotion, BodyShape, ClientId, Encoding, EntityId, GameState,
     ServerMessage, StateFrame, Tick,
 };
 
@@ -133,21 +133,18 @@ fn info(cap: &Capture, e: &Entry) -> BodyInfo {
 }
 
 /// The avatar's whole core state at the capture's tick (PROTOCOL.md, "Prediction"): exact
-/// position and velocity, its sleep state, and its contacts with static geometry.
-pub(super) fn avatar_state(cap: &Capture, avatar: EntityId) -> Option<AvatarState> {
+/// position and velocity, its sleep state, and its contacts with static geometry (`touches`: the
+/// indices into the capture's contacts of those that involve it, in order; see [`touches_of`]).
+pub(super) fn avatar_state(cap: &Capture, avatar: EntityId, touches: &[(EntityId, u32)]) -> Option<AvatarState> {
     let i = cap.table.id.binary_search(&avatar).ok()?;
     let is_body = |e: EntityId| cap.table.id.binary_search(&e).is_ok();
-    let touching = cap
-        .touching
+    let from = touches.partition_point(|t| t.0 < avatar);
+    let touching = touches[from..]
         .iter()
-        .filter_map(|t| {
-            let other = if t.a == avatar {
-                t.b
-            } else if t.b == avatar {
-                t.a
-            } else {
-                return None;
-            };
+        .take_while(|t| t.0 == avatar)
+        .filter_map(|&(_, k)| {
+            let t = &cap.touching[k as usize];
+            let other = if t.a == avatar { t.b } else { t.a };
             (!is_body(other)).then(|| AvatarTouch {
                 other,
                 normal: t.normal.to_array(),
@@ -169,6 +166,20 @@ pub(super) fn avatar_state(cap: &Capture, avatar: EntityId) -> Option<AvatarStat
     })
 }
 
+/// The capture's contacts by body, once a frame: `(body, index)` for each side of each contact,
+/// in body order and then contact order, so a watcher's are one search away rather than a pass
+/// over every watcher's contacts.
+pub(super) fn touches_of(cap: &Capture, out: &mut Vec<(EntityId, u32)>) {
+    out.clear();
+    for (k, t) in cap.touching.iter().enumerate() {
+        out.push((t.a, k as u32));
+        if t.b != t.a {
+            out.push((t.b, k as u32));
+        }
+    }
+    out.sort_unstable();
+}
+
 fn shape_of(s: &impact_core::geometry::Shape) -> BodyShape {
     use impact_core::geometry::ShapeKind as K;
     match s.kind() {
@@ -179,6 +190,13 @@ fn shape_of(s: &impact_core::geometry::Shape) -> BodyShape {
         K::Convex => BodyShape::Convex,
         K::TriMesh => BodyShape::Trimesh,
     }
+}
+
+/// A need's priority (a distance, less first) as an integer that orders the same: a
+/// non-negative float's bits do (`+ 0.0` makes a negative zero positive).
+fn rank(d: f64) -> u64 {
+    debug_assert!(d >= 0.0, "a priority is a distance");
+    (d + 0.0).to_bits()
 }
 
 /// No entry: a body gone since the last frame.
@@ -223,7 +241,7 @@ pub(super) struct Marks {
     near: Vec<u32>,
     dist: Vec<f64>,
     held: Vec<u32>,
-    wants: Vec<(f64, EntityId, u32, Want)>,
+    wants: Vec<(u64, EntityId, u32, Want)>,
     spare: Vec<HeldBody>,
 }
 
@@ -249,10 +267,10 @@ enum Want {
     /// New to the receiver (or everything, on a full frame).
     Enter,
     /// Held (at this index of what it keeps), its motion changed.
-    Move(usize),
+    Move(u32),
     /// Held (at this index), its info changed: sent whole again. Held back, it stays held with
     /// what the receiver has, so it is still said to leave if it leaves.
-    Again(usize),
+    Again(u32),
 }
 
 /// The frame that brings `held` to the bodies of `cands` (`(priority distance, entry)`, in any
@@ -305,13 +323,13 @@ pub(super) fn build(
         let (e, d) = (&entries[i as usize], marks.dist[i as usize]);
         let b = HeldBody { at: i, ..*b };
         if full {
-            wants.push((d, e.motion.0, i, Want::Enter));
+            wants.push((rank(d), e.motion.0, i, Want::Enter));
         } else if b.info != e.info {
             // Its class or game state changed: its info again, from the budget first.
-            wants.push((0.0, e.motion.0, i, Want::Again(keep.len())));
+            wants.push((rank(0.0), e.motion.0, i, Want::Again(keep.len() as u32)));
             keep.push(b);
         } else if changed(&b.motion, &e.motion, f64::from(cap.tick.0.wrapping_sub(b.sent.0)) * cap.config.dt) {
-            wants.push((d / (1.0 + f64::from(b.waited)), e.motion.0, i, Want::Move(keep.len())));
+            wants.push((rank(d / (1.0 + f64::from(b.waited))), e.motion.0, i, Want::Move(keep.len() as u32)));
             keep.push(b);
         } else {
             keep.push(b);
@@ -320,7 +338,7 @@ pub(super) fn build(
     // What is near and it does not hold: new to it.
     for &(d, i) in cands {
         if marks.held[i as usize] != stamp {
-            wants.push((d, entries[i as usize].motion.0, i, Want::Enter));
+            wants.push((rank(d), entries[i as usize].motion.0, i, Want::Enter));
         }
     }
     if full {
@@ -328,25 +346,26 @@ pub(super) fn build(
     }
     // Only as many as the budget could hold at the cheapest need ordering: pick them, sort them;
     // the rest wait (in any order: each just waits).
-    let cmp = |a: &(f64, EntityId, u32, Want), b: &(f64, EntityId, u32, Want)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
+    let cmp = |a: &(u64, EntityId, u32, Want), b: &(u64, EntityId, u32, Want)| (a.0, a.1).cmp(&(b.0, b.1));
     let fit = budget.map_or(wants.len(), |b| ((b - spend as f64).max(0.0) / MOTION_BYTES as f64) as usize + 1);
+    frame.moved.reserve(fit.min(wants.len()));
     if fit < wants.len() {
         wants.select_nth_unstable_by(fit, cmp);
-        wants[..fit].sort_by(cmp);
+        wants[..fit].sort_unstable_by(cmp);
     } else {
-        wants.sort_by(cmp);
+        wants.sort_unstable_by(cmp);
     }
     for &(_, _, i, want) in &wants {
         let e = &entries[i as usize];
         let cost = match want {
-            Want::Enter | Want::Again(_) => info_bytes(cap, e) + MOTION_BYTES,
+            Want::Enter | Want::Again(_) => e.info_bytes as usize + MOTION_BYTES,
             Want::Move(_) => MOTION_BYTES,
         };
         if let Some(b) = budget {
             if (spend + cost) as f64 > b {
                 frame.deferred += 1;
                 if let Want::Move(k) | Want::Again(k) = want {
-                    keep[k].waited = keep[k].waited.saturating_add(1);
+                    keep[k as usize].waited = keep[k as usize].waited.saturating_add(1);
                 }
                 continue;
             }
@@ -354,10 +373,13 @@ pub(super) fn build(
         spend += cost;
         frame.moved.push(e.motion);
         match want {
-            Want::Move(k) => keep[k] = HeldBody { motion: e.motion, sent: cap.tick, waited: 0, ..keep[k] },
+            Want::Move(k) => {
+                keep[k as usize] = HeldBody { motion: e.motion, sent: cap.tick, waited: 0, ..keep[k as usize] }
+            }
             Want::Again(k) => {
                 frame.entered.push(info(cap, e));
-                keep[k] = HeldBody { motion: e.motion, sent: cap.tick, info: e.info, waited: 0, ..keep[k] };
+                keep[k as usize] =
+                    HeldBody { motion: e.motion, sent: cap.tick, info: e.info, waited: 0, ..keep[k as usize] };
             }
             Want::Enter => {
                 frame.entered.push(info(cap, e));
@@ -375,7 +397,7 @@ pub(super) fn build(
 }
 
 /// The bytes a body's info is budgeted at.
-fn info_bytes(cap: &Capture, e: &Entry) -> usize {
+pub(super) fn info_bytes(cap: &Capture, e: &Entry) -> usize {
     let state = match e.src {
         Src::Dynamic(i) => state_bytes(&cap.table.game[i]),
         _ => 0,
@@ -395,6 +417,8 @@ pub(super) fn estimate(f: &StateFrame) -> usize {
     FRAME_BYTES + infos + f.moved.len() * MOTION_BYTES + f.left.len() * LEFT_BYTES + avatar
 }
 
+/// The frame encoded for `key`, in a buffer of the frame's [`estimate`] (its MessagePack
+/// size at most: written without growing).
 pub(super) fn publish(
     key: String,
     client: Option<ClientId>,
@@ -403,8 +427,9 @@ pub(super) fn publish(
     keep: bool,
 ) -> Option<Publish> {
     let deferred = frame.deferred;
+    let mut bytes = Vec::with_capacity(estimate(&frame));
     let msg = ServerMessage::State(frame);
-    let bytes = encode(&msg, encoding).ok()?;
+    encode_into(&msg, encoding, &mut bytes).ok()?;
     let frame = match msg {
         ServerMessage::State(f) if keep => Some(f),
         _ => None,

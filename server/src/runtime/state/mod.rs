@@ -22,7 +22,7 @@ mod frame;
 mod grid;
 mod thread;
 
-use frame::{avatar_state, build, estimate, f32x3, info_key, publish, Held, Marks, Remap};
+use frame::{avatar_state, build, estimate, f32x3, info_bytes, info_key, publish, touches_of, Held, Marks, Remap};
 use glam::DVec3;
 use grid::{AreaGrid, Filed};
 use impact_core::sim::world::{BodyTable, SimConfig, StaticWorld, Touch};
@@ -145,6 +145,8 @@ struct Entry {
     /// What its [`BodyInfo`] says that can change (class, game state), as a hash: a receiver
     /// that holds another is sent the info again.
     info: u64,
+    /// The bytes its [`BodyInfo`] is budgeted at (found once a frame, not per receiver).
+    info_bytes: u32,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -173,6 +175,8 @@ pub struct Streams {
     /// The largest half size of a body in the grid.
     reach: f64,
     scratch: Vec<(f64, u32)>,
+    /// The capture's contacts by body ([`frame::touches_of`]).
+    touches: Vec<(EntityId, u32)>,
     /// Last frame's entry indices to this frame's.
     remap: Remap,
     marks: Marks,
@@ -223,6 +227,7 @@ impl Streams {
             large: Vec::new(),
             reach: 0.0,
             scratch: Vec::new(),
+            touches: Vec::new(),
             remap: Remap::default(),
             marks: Marks::default(),
             counts: StreamCounts::default(),
@@ -258,6 +263,7 @@ impl Streams {
         let per_frame = f64::from(self.opts.bytes_per_s) / f64::from(self.opts.hz.max(1));
         let cap_tokens = f64::from(self.opts.bytes_per_s).max(per_frame);
         let mut seen = std::collections::BTreeSet::new();
+        touches_of(cap, &mut self.touches);
         for v in &cap.watchers {
             let Ok(at) = self.entries.binary_search_by_key(&v.avatar, |e| e.motion.0) else {
                 continue;
@@ -277,7 +283,7 @@ impl Streams {
             let full = full || held.frame == 0 || v.full;
             let at = (&self.entries[..], &self.remap);
             let mut frame = build(held, at, &mut self.marks, cap, &self.scratch, Some(held.tokens), full, Some(c));
-            frame.avatar = avatar_state(cap, v.avatar);
+            frame.avatar = avatar_state(cap, v.avatar, &self.touches);
             held.tokens = (held.tokens - estimate(&frame) as f64).max(0.0);
             self.counts.client_frames += 1;
             self.counts.in_area += self.scratch.len() as u64;
@@ -304,6 +310,7 @@ impl Streams {
             hi: st.aabb[i].max,
             src: Src::Static(i),
             info: 0,
+            info_bytes: 0,
         });
         let terrain = st.terrain.as_ref().map(|t| {
             let b = t.field.aabb();
@@ -313,6 +320,7 @@ impl Streams {
                 hi: b.max,
                 src: Src::Terrain,
                 info: 0,
+                info_bytes: 0,
             }
         });
         let t = &cap.table;
@@ -322,9 +330,13 @@ impl Streams {
             hi: cap.pos[i] + t.aabb_hi[i],
             src: Src::Dynamic(i),
             info: info_key(t.class[i], &t.game[i], t.teleported[i]),
+            info_bytes: 0,
         });
         self.entries.extend(statics.chain(terrain).chain(dynamic));
         self.entries.sort_by_key(|e| e.motion.0);
+        for e in &mut self.entries {
+            e.info_bytes = info_bytes(cap, e) as u32;
+        }
         self.remap.advance(&self.entries);
         self.large.clear();
         self.filed.clear();
@@ -350,23 +362,35 @@ impl Streams {
         // Squared distances: the square root only for the bodies kept.
         let (r2, dist2) = (r * r, |lo: DVec3, hi: DVec3| (lo - c).max(c - hi).max(DVec3::ZERO).length_squared());
         // A body in the area has its centre within the radius plus its own half size (at most
-        // `reach`) of the centre: the cells whose box, grown by `reach`, the area touches.
+        // `reach`) of the centre. Each (x, y) column of cells, grown by `reach`, is `dxy` across
+        // from the centre; the area's chord through it is `(r² - dxy²)^½` each way in z, so its
+        // bodies' centres are within that plus `reach` of the centre's z: the cells read are the
+        // sphere's, not the cube's around it.
         let g = &self.grid;
-        let span = DVec3::splat(r + self.reach);
-        let (lo, hi) = (g.cell_of(c - span), g.cell_of(c + span));
-        let clamp = |v: i64, k: usize| v.clamp(0, g.dims[k] - 1);
+        let span = r + self.reach;
+        let (lo, hi) = (g.cell_of(c - DVec3::splat(span)), g.cell_of(c + DVec3::splat(span)));
         if (0..3).all(|k| hi[k] >= 0 && lo[k] < g.dims[k]) {
-            let (z0, z1) = (clamp(lo[2], 2), clamp(hi[2], 2));
-            let grow = DVec3::splat(self.reach);
+            let clamp = |v: i64, k: usize| v.clamp(0, g.dims[k] - 1);
+            let reach = self.reach;
+            // The distance from `v` to the cells `a..=a` along an axis, grown by `reach`.
+            let across = |v: f64, a: i64, o: f64| {
+                let (l, h) = (o + a as f64 * g.size - reach, o + (a + 1) as f64 * g.size + reach);
+                (l - v).max(v - h).max(0.0)
+            };
             for x in clamp(lo[0], 0)..=clamp(hi[0], 0) {
+                let dx = across(c.x, x, g.origin.x);
                 for y in clamp(lo[1], 1)..=clamp(hi[1], 1) {
-                    // The row of cells z0..=z1 at (x, y), grown by `reach`: skipped if the area
-                    // misses it.
-                    let row_lo = g.origin + DVec3::new(x as f64, y as f64, z0 as f64) * g.size - grow;
-                    let row_hi = g.origin + DVec3::new((x + 1) as f64, (y + 1) as f64, (z1 + 1) as f64) * g.size + grow;
-                    if dist2(row_lo, row_hi) > r2 {
+                    let dy = across(c.y, y, g.origin.y);
+                    let dxy2 = dx * dx + dy * dy;
+                    if dxy2 > r2 {
                         continue;
                     }
+                    let h = (r2 - dxy2).sqrt() + reach;
+                    let (z0, z1) = (g.cell_of(c - DVec3::splat(h))[2], g.cell_of(c + DVec3::splat(h))[2]);
+                    if z1 < 0 || z0 >= g.dims[2] {
+                        continue;
+                    }
+                    let (z0, z1) = (clamp(z0, 2), clamp(z1, 2));
                     let (a, b) = (g.start[g.index([x, y, z0])], g.start[g.index([x, y, z1]) + 1]);
                     for f in &g.items[a as usize..b as usize] {
                         let d2 = dist2(f.lo, f.hi);
@@ -506,7 +530,7 @@ mod tests {
             assert_eq!(held.len(), w.bodies.len() + statics, "frame {frame}");
             for i in 0..w.bodies.len() {
                 let (e, (m, info)) = (w.bodies.id[i], &held[&w.bodies.id[i]]);
-                let s = f64::from(frame - sent_at[&e].0) * dt;
+                let s = f64::from(f.tick.0 - sent_at[&e].0) * dt;
                 for k in 0..3 {
                     let drawn = f64::from(m.1[k]) + f64::from(m.2[k]) * s;
                     let (p, v) = (w.bodies.pos[i][k], w.bodies.vel[i][k]);
@@ -610,6 +634,34 @@ mod tests {
             (a.entity, a.position, a.velocity),
             (watchers[0].avatar, w.bodies.pos[i].to_array(), w.bodies.vel[i].to_array())
         );
+    }
+
+    /// Each client's frame carries its own avatar's contacts with static geometry, in the
+    /// contact list's order, whichever side of the pair the avatar is: not another avatar's, and
+    /// not those with other bodies.
+    #[test]
+    fn a_client_frame_carries_its_own_avatars_contacts_with_statics() {
+        let (mut w, watchers) = arena(3);
+        let [a, b, c] = [0, 1, 2].map(|k| watchers[k].avatar);
+        let (s0, s1) = (w.statics.id[0], w.statics.id[1]);
+        let touch = |x: EntityId, y: EntityId, depth: f64| impact_core::sim::world::Touch {
+            a: x.min(y),
+            b: x.max(y),
+            normal: DVec3::Y,
+            depth,
+            impulse: 0.0,
+            friction_impulse: DVec3::ZERO,
+        };
+        w.touching = vec![touch(c, s0, 0.3), touch(a, s1, 0.1), touch(a, b, 0.9), touch(s0, a, 0.2)];
+        let mut s = Streams::new(WorldId::new("arena").unwrap(), opts(), Encoding::MsgPack);
+        let out = s.frames(&Capture::of(&w, watchers.clone()), false, true);
+        let contacts: Vec<Vec<(EntityId, f64)>> = out
+            .iter()
+            .map(|p| {
+                decoded(p).avatar.expect("the avatar's state").touching.iter().map(|t| (t.other, t.depth_m)).collect()
+            })
+            .collect();
+        assert_eq!(contacts, [vec![(s1, 0.1), (s0, 0.2)], vec![], vec![(s0, 0.3)]]);
     }
 
     /// A held body whose info changed is sent whole again; held back by the budget, the
