@@ -46,7 +46,10 @@ pub fn run(
     for (n, mut cap) in rx.into_iter().enumerate() {
         let t0 = Instant::now();
         let n = n as u64;
-        listeners.retain(|c, _| cap.watchers.iter().any(|v| v.client == *c));
+        // Forget the clients gone (a search each, not a pass over the watchers each).
+        let mut watching: Vec<ClientId> = cap.watchers.iter().map(|v| v.client).collect();
+        watching.sort_unstable();
+        listeners.retain(|c, _| watching.binary_search(c).is_ok());
         cap.watchers.retain(|v| {
             let l = listeners.entry(v.client).or_insert_with(|| Listener {
                 publisher: publisher(keys::CLIENT_STATE.key(&world, Some(v.client))),
