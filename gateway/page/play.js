@@ -2939,6 +2939,8 @@ async function main() {
     const tick = game.clock.serverTick(now) ?? 0;
     status.textContent = closed ? `closed: ${closed.reason}` : game.status === "playing" ? `playing \xB7 client ${me} \xB7 tick ${tick} \xB7 ${bodies} bodies` : `${game.status} \xB7 client ${me}`;
     for (const [k, v] of Object.entries(counts)) status.dataset[k] = String(v);
+    const reasons = Object.entries(game.stats.rejects).map(([r, n]) => `${r}:${n}`).join(" ");
+    status.dataset.rejectReasons = reasons;
     if (at2) [status.dataset.x, status.dataset.y, status.dataset.z] = at2.map((c) => c.toFixed(2));
     status.dataset.scale = view.scale.toFixed(3);
     if (now - second.atMs >= 1e3) {
@@ -2948,6 +2950,7 @@ async function main() {
       panel("lead", `lead ${(game.clock.lead ?? 0).toFixed(1)} ticks`);
       panel("corr", `${game.stats.corrections - second.corrections} corrections/s`);
       panel("bytes", `${((conn.bytesIn - second.bytes) / 1024).toFixed(1)} KiB/s in`);
+      panel("rejects", reasons === "" ? "" : `rejected: ${reasons}`);
       second = { atMs: now, corrections: game.stats.corrections, bytes: conn.bytesIn };
     }
     requestAnimationFrame(frame);

@@ -7,7 +7,8 @@
 // `#status` reads `playing · client C · tick T · N bodies` once joined and keeps counters in data
 // attributes for tests and tools: data-acked, data-rejects, data-events, data-hits (hit events
 // this avatar shot or took), data-rays (shots answered), data-players (other players drawn), data-confirmed and data-mismatched
-// (confirmed ticks compared with the view, and those it got wrong), data-avatar (the own
+// (confirmed ticks compared with the view, and those it got wrong), data-reject-reasons (the server's
+// rejects of this page's inputs by reason, `stale:2 future:1`, also shown beside the ping), data-avatar (the own
 // entity), data-hit-last (the last entity it hit), data-hit-by (the last that hit it), and its
 // drawn position data-x, data-y, data-z with the view's data-scale (pixels a metre).
 //
@@ -167,6 +168,12 @@ async function main(): Promise<void> {
         ? `playing · client ${me} · tick ${tick} · ${bodies} bodies`
         : `${game.status} · client ${me}`;
     for (const [k, v] of Object.entries(counts)) status.dataset[k] = String(v);
+    // Why the server turned inputs away (a `stale` input came too late for its tick, a `future` one
+    // too early): the first thing to read when data-rejects is not 0.
+    const reasons = Object.entries(game.stats.rejects)
+      .map(([r, n]) => `${r}:${n}`)
+      .join(" ");
+    status.dataset.rejectReasons = reasons;
     if (at) [status.dataset.x, status.dataset.y, status.dataset.z] = at.map((c) => c.toFixed(2));
     status.dataset.scale = view.scale.toFixed(3);
     if (now - second.atMs >= 1000) {
@@ -176,6 +183,7 @@ async function main(): Promise<void> {
       panel("lead", `lead ${(game.clock.lead ?? 0).toFixed(1)} ticks`);
       panel("corr", `${game.stats.corrections - second.corrections} corrections/s`);
       panel("bytes", `${((conn.bytesIn - second.bytes) / 1024).toFixed(1)} KiB/s in`);
+      panel("rejects", reasons === "" ? "" : `rejected: ${reasons}`);
       second = { atMs: now, corrections: game.stats.corrections, bytes: conn.bytesIn };
     }
     requestAnimationFrame(frame);
