@@ -15,6 +15,7 @@
 //! would cost a TCP connection and its buffers each, for nothing the test measures, and a single
 //! session would serialise every client's traffic through one link.
 
+use crate::ledger::Ledger;
 use crate::report::{quantile, Report, UNEXPECTED_KEPT};
 use crate::timing::{Margins, Timing};
 use hdrhistogram::Histogram;
@@ -25,7 +26,6 @@ use impact_client::{Outcome, Session, SessionConfig, Status};
 use impact_protocol::{
     keys, Action, ClientId, ClientMessage, Encoding, EntityId, RejectReason, ServerMessage, Tick, WorldId,
 };
-use std::collections::BTreeMap;
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
 use std::sync::atomic::AtomicU64;
@@ -262,16 +262,8 @@ struct Client {
     playing_since: Option<Instant>,
     next_action: Instant,
     next_frame: Instant,
-    /// The highest seq delivered to the server: seqs past it are delivered for the first time
-    /// (messages are delivered in order, and each carries its newest input last).
-    delivered: u32,
-    /// Answers owed by the server, per seq: one per delivery of an input not yet accepted (a
-    /// copy of an accepted input is skipped without an answer; a rejected one is answered again).
-    owed: BTreeMap<u32, u32>,
-    /// Seqs acked, the last [`AckedSeqs::SEQS`] (4,096): a second ack is an input applied twice.
-    /// A fixed 520 bytes a client from the first input on (a set of the seqs grew for 14 minutes
-    /// of a soak).
-    acked: AckedSeqs,
+    /// The answers the server owes it, and those it gave.
+    ledger: Ledger,
     margins: Margins,
     /// Accepted inputs sent in the first two seconds of play, and how many of them were late;
     /// the same after.
@@ -296,10 +288,6 @@ const DOWN_LINE: usize = 1 << 21;
 
 /// Confirmed batches a client keeps the digest of, to see one change.
 const CONFIRMED_KEPT: u32 = 2048;
-
-/// Acked seqs a client remembers: four times the server's window of seqs (1,024), past which a
-/// second ack could not be told from a first.
-type AckedSeqs = impact_server::rollback::seq_window::Window<64>;
 
 /// A client back after its session was dropped: what the invariants ask of it.
 #[derive(Clone, Copy, Debug)]
@@ -374,52 +362,6 @@ const EARLY: Duration = Duration::from_secs(2);
 
 /// A game client draws this often.
 const FRAME: Duration = Duration::from_nanos(16_666_667);
-
-impl Client {
-    /// An ack of `seq`: nothing more is owed for it, however many copies were delivered; false
-    /// when it was acked before (applied twice).
-    fn accepted(&mut self, seq: u32) -> bool {
-        self.owed.remove(&seq);
-        self.note_acked(seq)
-    }
-
-    /// Remembers `seq` as acked (false when it was already; true for a seq [`AckedSeqs::SEQS`]
-    /// or more before the newest acked, which the window can no longer tell).
-    fn note_acked(&mut self, seq: u32) -> bool {
-        self.acked.insert(seq)
-    }
-
-    /// Counts a reject of `seq` (a rejected input does not use up its seq, so each copy of it is
-    /// answered); false when none was owed (answered twice, or never sent).
-    fn answered(&mut self, seq: u32) -> bool {
-        match self.owed.get_mut(&seq) {
-            Some(n) if *n > 1 => {
-                *n -= 1;
-                true
-            }
-            Some(_) => {
-                self.owed.remove(&seq);
-                true
-            }
-            None => false,
-        }
-    }
-
-    /// A message carrying `seqs` reached the server.
-    fn delivered(&mut self, seqs: &[u32]) -> u64 {
-        let mut new = 0;
-        for &seq in seqs {
-            if !self.acked.contains(seq) {
-                *self.owed.entry(seq).or_insert(0) += 1;
-            }
-            if impact_protocol::serial::precedes(self.delivered, seq) {
-                new += 1;
-            }
-        }
-        self.delivered = seqs.iter().fold(self.delivered, |d, &s| impact_protocol::serial::later(d, s));
-        new
-    }
-}
 
 /// A confirmed batch's events, digested (FNV-1a over their JSON, folded to 31 bits, the lowest
 /// set) to see a second batch of a tick differ. Written into the hash as it is made: every client digests
@@ -972,9 +914,7 @@ fn clients(cfg: &LoadConfig, start: Instant) -> anyhow::Result<Vec<Client>> {
             playing_since: None,
             next_action: start,
             next_frame: start,
-            delivered: 0,
-            owed: BTreeMap::new(),
-            acked: Default::default(),
+            ledger: Ledger::default(),
             margins: Margins::default(),
             early: (0, 0),
             steady: (0, 0),
@@ -1297,18 +1237,14 @@ impl Run<'_> {
                     back.welcomed = Some(w.avatar.is_some() && w.avatar == back.avatar);
                 }
                 // Welcomed again (a reconnect, a takeover): the server answered every seq below
-                // next_seq it heard (the highest accepted; answers lost with the old link); the
-                // session learns which from the next ack.
-                let told: Vec<u32> =
-                    c.owed.keys().copied().filter(|&seq| impact_protocol::serial::precedes(seq, w.next_seq)).collect();
-                for seq in told {
-                    c.accepted(seq);
-                    r.accepted_by_welcome += 1;
-                }
+                // next_seq it heard (the one just below accepted, the others accepted, refused or
+                // never heard; answers lost with the old link); the session learns which from the
+                // next ack, and a copy still on its way may be answered once more.
+                r.answered_by_welcome += c.ledger.welcomed(w.next_seq);
             }
             ServerMessage::Ack(a) if a.client == c.id => {
                 // A second ack of one seq: an input applied twice.
-                if !c.accepted(a.seq) {
+                if !c.ledger.accepted(a.seq) {
                     r.not_owed(
                         now.saturating_duration_since(self.load_start),
                         c.id,
@@ -1318,10 +1254,7 @@ impl Run<'_> {
                 }
                 // Seqs before it the server says it accepted: owed nothing more (their own acks
                 // may have been lost on the way).
-                for seq in impact_client::session::accepted_before(a.seq, a.accepted_before) {
-                    c.owed.remove(&seq);
-                    c.note_acked(seq);
-                }
+                c.ledger.acked_before(impact_client::session::accepted_before(a.seq, a.accepted_before));
             }
             ServerMessage::Reject(j) if j.client == c.id => {
                 if j.reason == RejectReason::Future {
@@ -1334,27 +1267,19 @@ impl Run<'_> {
                         clock.lead()
                     ));
                 }
-                // An accepted input whose entity went away before its tick was re-simulated is
-                // told so by a second message (PROTOCOL.md); a copy that arrives once its seq
-                // has left the window is refused as a duplicate.
-                let expected = match j.seq {
-                    Some(seq) => {
-                        c.answered(seq)
-                            || (c.acked.contains(seq)
-                                && matches!(
-                                    j.reason,
-                                    RejectReason::UnknownEntity | RejectReason::NotOwner | RejectReason::Duplicate
-                                ))
-                    }
-                    None => false,
+                // Each delivered copy of a refused input is answered; a welcome may leave one
+                // answer open (`Ledger::rejected`).
+                let due = match j.seq {
+                    Some(seq) => c.ledger.rejected(seq, j.reason),
+                    None => Err("no seq"),
                 };
-                if !expected {
-                    let held = match j.seq {
-                        Some(seq) if c.acked.contains(seq) => "acked before",
-                        Some(_) => "never acked",
-                        None => "no seq",
-                    };
-                    let what = format!("reject {} (seq {:?}), no copy owed an answer, {held}", j.reason.name(), j.seq);
+                if let Err(held) = due {
+                    let what = format!(
+                        "reject {} (seq {:?}: {}), no copy owed an answer, {held}",
+                        j.reason.name(),
+                        j.seq,
+                        j.detail
+                    );
                     r.not_owed(now.saturating_duration_since(self.load_start), c.id, j.seq.unwrap_or(0), what);
                 }
                 *r.rejects.entry(j.reason.name().to_string()).or_insert(0) += 1;
@@ -1439,7 +1364,7 @@ impl Run<'_> {
                 if a.outcome == Outcome::Lost {
                     // Known to the client as never having reached the server (PROTOCOL.md,
                     // "Presence"): owed nothing, and not silent.
-                    c.owed.remove(&a.seq);
+                    c.ledger.lost(a.seq);
                     self.r.inputs_known_lost += 1;
                     continue;
                 }
@@ -1462,6 +1387,11 @@ impl Run<'_> {
                 share.1 += u64::from(margin_ticks < 0);
             }
             while let Some(msg) = s.poll_transmit(now) {
+                // A closed session sends nothing: what its clients send meanwhile is gone (not
+                // held by a partition's stalled line to go out through the next session).
+                if c.left.is_some() {
+                    continue;
+                }
                 let Ok(bytes) = impact_protocol::encode(&msg, cfg.encoding) else { continue };
                 let seqs = seqs(&msg);
                 let twice = !seqs.is_empty() && self.rng.unit() < cfg.faults.duplicate;
@@ -1525,7 +1455,7 @@ impl Run<'_> {
                 // A closed session sends nothing: what its clients sent meanwhile is gone.
                 let open = !wiring.closed[line];
                 if open && wiring.inputs[k].as_ref().is_some_and(|p| p.put(bytes).wait().is_ok()) {
-                    self.r.inputs_delivered += self.clients[k].delivered(&seqs);
+                    self.r.inputs_delivered += self.clients[k].ledger.delivered(&seqs);
                 }
             }
         }
@@ -1544,10 +1474,9 @@ impl Run<'_> {
     fn follow(&mut self, wiring: &mut Wiring, next: WorldId, now: Instant) -> anyhow::Result<()> {
         let cfg = self.cfg;
         for c in &mut self.clients {
-            self.r.inputs_void_at_close += c.owed.values().map(|&n| u64::from(n)).sum::<u64>();
-            c.owed.clear();
-            c.acked = AckedSeqs::default();
-            (c.delivered, c.welcomed, c.playing_since) = (0, false, None);
+            self.r.inputs_void_at_close += c.ledger.unanswered();
+            c.ledger = Ledger::default();
+            (c.welcomed, c.playing_since) = (false, None);
             let old = std::mem::replace(&mut c.session, new_session(cfg, c.id));
             self.retired.push((c.game, old));
         }
@@ -1626,11 +1555,11 @@ impl Run<'_> {
         let secs = cfg.duration.as_secs_f64().max(1e-9);
         r.inputs_lost_in_network = r.inputs_sent.saturating_sub(r.inputs_delivered);
         r.messages_lost_in_network = self.up.iter().map(|l| l.lost).sum();
-        r.inputs_unanswered = clients.iter().map(|c| c.owed.values().map(|&n| u64::from(n)).sum::<u64>()).sum();
+        r.inputs_unanswered = clients.iter().map(|c| c.ledger.unanswered()).sum();
         // Unanswered counts deliveries (a rejected input owes an answer per copy); this counts
         // inputs: those the clients still await an answer for, after the settle.
         r.inputs_awaited =
-            clients.iter().map(|c| c.owed.keys().filter(|&&seq| c.session.awaits(seq)).count() as u64).sum();
+            clients.iter().map(|c| c.ledger.owed().filter(|&seq| c.session.awaits(seq)).count() as u64).sum();
         r.latency_ms_p50 = latency.value_at_quantile(0.5) as f64 / 1000.0;
         r.latency_ms_p99 = latency.value_at_quantile(0.99) as f64 / 1000.0;
         r.latency_ms_max = latency.max() as f64 / 1000.0;

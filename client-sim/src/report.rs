@@ -46,8 +46,9 @@ pub struct Report {
     /// Inputs the client library answered itself as lost at a reconnect: sent while the link
     /// was down, never accepted (`Outcome::Lost`).
     pub inputs_known_lost: u64,
-    /// Inputs whose answers were lost with a link and a later welcome's `next_seq` told accepted.
-    pub accepted_by_welcome: u64,
+    /// Inputs whose answers were lost with a link and a later welcome's `next_seq` told answered
+    /// (accepted, refused or never heard: the next ack tells the client which).
+    pub answered_by_welcome: u64,
     /// Inputs a world that closed never answered (void with it: PROTOCOL.md, "Worlds at run
     /// time").
     pub inputs_void_at_close: u64,
@@ -343,12 +344,12 @@ impl Report {
                 self.links_restored, self.views_unverified
             )?;
         }
-        if self.inputs_known_lost + self.accepted_by_welcome > 0 {
+        if self.inputs_known_lost + self.answered_by_welcome > 0 {
             writeln!(
                 f,
-                "  resumed  {} inputs known lost at a reconnect (never reached the server), {} told accepted by a \
+                "  resumed  {} inputs known lost at a reconnect (never reached the server), {} answered by a \
                  welcome; of the unanswered deliveries, {} inputs still awaited",
-                self.inputs_known_lost, self.accepted_by_welcome, self.inputs_awaited
+                self.inputs_known_lost, self.answered_by_welcome, self.inputs_awaited
             )?;
         }
         if self.session_drops > 0 {
