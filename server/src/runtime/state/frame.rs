@@ -192,7 +192,7 @@ fn shape_of(s: &impact_core::geometry::Shape) -> BodyShape {
     }
 }
 
-/// A need's priority (a distance, less first) as an integer that orders the same: a
+/// A need's priority (a squared distance, less first) as an integer that orders the same: a
 /// non-negative float's bits do (`+ 0.0` makes a negative zero positive).
 fn rank(d: f64) -> u64 {
     debug_assert!(d >= 0.0, "a priority is a distance");
@@ -238,11 +238,20 @@ impl Remap {
 #[derive(Debug, Default)]
 pub(super) struct Marks {
     stamp: u32,
-    near: Vec<u32>,
-    dist: Vec<f64>,
-    held: Vec<u32>,
+    /// Per entry, together: a receiver reads and writes all three of the entries near it, one
+    /// cache line each rather than three.
+    at: Vec<Mark>,
     wants: Vec<(u64, EntityId, u32, Want)>,
     spare: Vec<HeldBody>,
+}
+
+/// An entry's marks: the stamp of the receiver it is near (and its squared distance to it), and
+/// of the receiver that holds it.
+#[derive(Clone, Copy, Debug, Default)]
+struct Mark {
+    near: u32,
+    held: u32,
+    dist2: f64,
 }
 
 impl Marks {
@@ -250,14 +259,10 @@ impl Marks {
     fn begin(&mut self, n: usize) -> u32 {
         self.stamp = self.stamp.wrapping_add(1);
         if self.stamp == 0 {
-            self.near.fill(0);
-            self.held.fill(0);
+            self.at.fill(Mark::default());
             self.stamp = 1;
         }
-        for v in [&mut self.near, &mut self.held] {
-            v.resize(n, 0);
-        }
-        self.dist.resize(n, 0.0);
+        self.at.resize(n, Mark::default());
         self.stamp
     }
 }
@@ -273,8 +278,8 @@ enum Want {
     Again(u32),
 }
 
-/// The frame that brings `held` to the bodies of `cands` (`(priority distance, entry)`, in any
-/// order), spending at most `budget` estimated bytes; updates `held` to what it sends.
+/// The frame that brings `held` to the bodies of `cands` (`(squared priority distance, entry)`,
+/// in any order), spending at most `budget` estimated bytes; updates `held` to what it sends.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn build(
     held: &mut Held,
@@ -300,9 +305,9 @@ pub(super) fn build(
     held.frame = held.frame.wrapping_add(1);
     let mut spend = FRAME_BYTES;
     let stamp = marks.begin(entries.len());
-    for &(d, i) in cands {
-        marks.near[i as usize] = stamp;
-        marks.dist[i as usize] = d;
+    for &(d2, i) in cands {
+        let m = &mut marks.at[i as usize];
+        (m.near, m.dist2) = (stamp, d2);
     }
     let mut wants = std::mem::take(&mut marks.wants);
     wants.clear();
@@ -312,33 +317,36 @@ pub(super) fn build(
     let old = std::mem::take(&mut held.bodies);
     for b in &old {
         let i = remap.get(b.at);
-        if i == GONE || marks.near[i as usize] != stamp {
+        if i == GONE || marks.at[i as usize].near != stamp {
             if !full {
                 frame.left.push(b.motion.0);
                 spend += LEFT_BYTES;
             }
             continue;
         }
-        marks.held[i as usize] = stamp;
-        let (e, d) = (&entries[i as usize], marks.dist[i as usize]);
+        let m = &mut marks.at[i as usize];
+        m.held = stamp;
+        let (e, d2) = (&entries[i as usize], m.dist2);
         let b = HeldBody { at: i, ..*b };
         if full {
-            wants.push((rank(d), e.motion.0, i, Want::Enter));
+            wants.push((rank(d2), e.motion.0, i, Want::Enter));
         } else if b.info != e.info {
             // Its class or game state changed: its info again, from the budget first.
             wants.push((rank(0.0), e.motion.0, i, Want::Again(keep.len() as u32)));
             keep.push(b);
         } else if changed(&b.motion, &e.motion, f64::from(cap.tick.0.wrapping_sub(b.sent.0)) * cap.config.dt) {
-            wants.push((rank(d / (1.0 + f64::from(b.waited))), e.motion.0, i, Want::Move(keep.len() as u32)));
+            // The distance over one plus the frames it waited, squared as the distance is.
+            let wait = 1.0 + f64::from(b.waited);
+            wants.push((rank(d2 / (wait * wait)), e.motion.0, i, Want::Move(keep.len() as u32)));
             keep.push(b);
         } else {
             keep.push(b);
         }
     }
     // What is near and it does not hold: new to it.
-    for &(d, i) in cands {
-        if marks.held[i as usize] != stamp {
-            wants.push((rank(d), entries[i as usize].motion.0, i, Want::Enter));
+    for &(d2, i) in cands {
+        if marks.at[i as usize].held != stamp {
+            wants.push((rank(d2), entries[i as usize].motion.0, i, Want::Enter));
         }
     }
     if full {

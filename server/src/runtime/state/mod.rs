@@ -355,11 +355,13 @@ impl Streams {
     }
 
     /// The bodies within `aoi_m` of `c` (distance to their bounds) into `scratch`, as
-    /// `(distance, entry)`, in the order of the grid's cells.
+    /// `(squared distance, entry)`, in the order of the grid's cells (no square root: the
+    /// squares order the same).
     fn near(&mut self, c: DVec3) {
-        self.scratch.clear();
+        // A local list: pushed to in the hot loop, its length stays in a register.
+        let mut scratch = std::mem::take(&mut self.scratch);
+        scratch.clear();
         let r = self.opts.aoi_m;
-        // Squared distances: the square root only for the bodies kept.
         let (r2, dist2) = (r * r, |lo: DVec3, hi: DVec3| (lo - c).max(c - hi).max(DVec3::ZERO).length_squared());
         // A body in the area has its centre within the radius plus its own half size (at most
         // `reach`) of the centre. Each (x, y) column of cells, grown by `reach`, is `dxy` across
@@ -395,7 +397,7 @@ impl Streams {
                     for f in &g.items[a as usize..b as usize] {
                         let d2 = dist2(f.lo, f.hi);
                         if d2 <= r2 {
-                            self.scratch.push((d2.sqrt(), f.i));
+                            scratch.push((d2, f.i));
                         }
                     }
                 }
@@ -405,9 +407,10 @@ impl Streams {
             let e = &self.entries[i as usize];
             let d2 = dist2(e.lo, e.hi);
             if d2 <= r2 {
-                self.scratch.push((d2.sqrt(), i));
+                scratch.push((d2, i));
             }
         }
+        self.scratch = scratch;
     }
 }
 
