@@ -185,3 +185,156 @@ pub struct AvatarTouch {
     /// Friction impulse it last needed, N s, world frame.
     pub friction_impulse: [f64; 3],
 }
+
+impl StateFrame {
+    /// The frame as a `state` message in MessagePack, onto the end of `out`: the bytes
+    /// `encode_into(&ServerMessage::State(frame), Encoding::MsgPack, out)` writes, after the same
+    /// validation, but written directly where a frame is mostly made of (its fields, `moved`,
+    /// `left`); the entered bodies' infos and the avatar's state go through serde. The server's
+    /// state thread encodes twenty thousand frames a second with it.
+    ///
+    /// [`encode_into`](crate::encode_into)
+    pub fn encode_msgpack(&self, out: &mut Vec<u8>) -> Result<(), crate::ProtocolError> {
+        use crate::Validate;
+        let malformed = |e: rmp_serde::encode::Error| crate::ProtocolError::Malformed {
+            encoding: "msgpack",
+            detail: e.to_string(),
+        };
+        self.validate()?;
+        // The fields as serde names and orders them: the tag first, `avatar` only when present.
+        mp::map_len(out, 9 + usize::from(self.avatar.is_some()));
+        mp::str(out, "type");
+        mp::str(out, "state");
+        mp::str(out, "tick");
+        mp::uint(out, self.tick.0);
+        mp::str(out, "frame");
+        mp::uint(out, self.frame);
+        mp::str(out, "full");
+        mp::bool(out, self.full);
+        mp::str(out, "entered");
+        mp::array_len(out, self.entered.len());
+        for info in &self.entered {
+            rmp_serde::encode::write_named(out, info).map_err(malformed)?;
+        }
+        mp::str(out, "moved");
+        mp::array_len(out, self.moved.len());
+        for BodyMotion(entity, position, velocity, asleep) in &self.moved {
+            mp::array_len(out, 4);
+            mp::uint(out, entity.0);
+            mp::f32s(out, position);
+            mp::f32s(out, velocity);
+            mp::bool(out, *asleep);
+        }
+        mp::str(out, "left");
+        mp::array_len(out, self.left.len());
+        for entity in &self.left {
+            mp::uint(out, entity.0);
+        }
+        mp::str(out, "deferred");
+        mp::uint(out, self.deferred);
+        mp::str(out, "centre");
+        match &self.centre {
+            Some(c) => mp::f32s(out, c),
+            None => out.push(mp::NIL),
+        }
+        if let Some(avatar) = &self.avatar {
+            mp::str(out, "avatar");
+            rmp_serde::encode::write_named(out, avatar).map_err(malformed)?;
+        }
+        Ok(())
+    }
+}
+
+/// The few MessagePack forms a state frame is written in, each in its shortest form, as
+/// `rmp-serde` writes them (the MessagePack specification, "Formats").
+mod mp {
+    pub(super) const NIL: u8 = 0xc0;
+
+    pub(super) fn bool(out: &mut Vec<u8>, b: bool) {
+        out.push(if b { 0xc3 } else { 0xc2 });
+    }
+
+    pub(super) fn uint(out: &mut Vec<u8>, n: u32) {
+        match n {
+            0..0x80 => out.push(n as u8),
+            0x80..0x100 => out.extend_from_slice(&[0xcc, n as u8]),
+            0x100..0x1_0000 => {
+                out.push(0xcd);
+                out.extend_from_slice(&(n as u16).to_be_bytes());
+            }
+            _ => {
+                out.push(0xce);
+                out.extend_from_slice(&n.to_be_bytes());
+            }
+        }
+    }
+
+    /// Three `f32`s as an array.
+    pub(super) fn f32s(out: &mut Vec<u8>, v: &[f32; 3]) {
+        let [a, b, c] = v.map(f32::to_be_bytes);
+        out.extend_from_slice(&[0x93, 0xca, a[0], a[1], a[2], a[3], 0xca, b[0], b[1], b[2], b[3], 0xca]);
+        out.extend_from_slice(&c);
+    }
+
+    /// A length: `fix` ORed with it under 16, else the 16- or 32-bit form.
+    fn len(out: &mut Vec<u8>, n: usize, fix: u8, forms: [u8; 2]) {
+        if n < 16 {
+            out.push(fix | n as u8);
+        } else if n <= 0xffff {
+            out.push(forms[0]);
+            out.extend_from_slice(&(n as u16).to_be_bytes());
+        } else {
+            out.push(forms[1]);
+            out.extend_from_slice(&(n as u32).to_be_bytes());
+        }
+    }
+
+    pub(super) fn array_len(out: &mut Vec<u8>, n: usize) {
+        len(out, n, 0x90, [0xdc, 0xdd]);
+    }
+
+    pub(super) fn map_len(out: &mut Vec<u8>, n: usize) {
+        len(out, n, 0x80, [0xde, 0xdf]);
+    }
+
+    /// A field name: under 32 bytes, all of them.
+    pub(super) fn str(out: &mut Vec<u8>, s: &str) {
+        debug_assert!(s.len() < 32);
+        out.push(0xa0 | s.len() as u8);
+        out.extend_from_slice(s.as_bytes());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::mp;
+
+    /// Each form at the edges of its sizes, as `rmp-serde` writes it.
+    #[test]
+    fn the_frame_writer_forms_are_rmp_serdes() {
+        for n in [0u32, 1, 127, 128, 255, 256, 65_535, 65_536, u32::MAX] {
+            let mut out = Vec::new();
+            mp::uint(&mut out, n);
+            assert_eq!(out, rmp_serde::to_vec(&n).unwrap(), "{n}");
+        }
+        for n in [0usize, 15, 16, 65_535, 65_536] {
+            let (mut array, mut map) = (Vec::new(), Vec::new());
+            mp::array_len(&mut array, n);
+            mp::map_len(&mut map, n);
+            let seq = rmp_serde::to_vec(&vec![0u8; n]).unwrap();
+            let keys: std::collections::BTreeMap<u32, u8> = (0..n as u32).map(|k| (k, 0)).collect();
+            assert_eq!(array, seq[..array.len()], "array of {n}");
+            assert_eq!(map, rmp_serde::to_vec(&keys).unwrap()[..map.len()], "map of {n}");
+        }
+        for v in [[0.0f32, -1.5, f32::MAX], [f32::MIN_POSITIVE, 3.25e-7, -0.0]] {
+            let mut out = Vec::new();
+            mp::f32s(&mut out, &v);
+            assert_eq!(out, rmp_serde::to_vec(&v).unwrap());
+        }
+        for s in ["", "type", "a name of thirty-one bytes, max"] {
+            let mut out = Vec::new();
+            mp::str(&mut out, s);
+            assert_eq!(out, rmp_serde::to_vec(s).unwrap(), "{s:?}");
+        }
+    }
+}

@@ -6,6 +6,7 @@ use crate::error::ProtocolError;
 use crate::event::CollisionEvent;
 use crate::limits::*;
 use crate::message::*;
+use crate::state::StateFrame;
 
 /// A decoded message that can check its own values.
 pub trait Validate {
@@ -314,50 +315,7 @@ impl Validate for ServerMessage {
                 WorldOutcome::Refused { detail, .. } => count(detail.len(), 4096, "detail"),
                 _ => Ok(()),
             },
-            ServerMessage::State(f) => {
-                let f32s = |v: &[f32; 3], path: &dyn Fn() -> String| {
-                    v.iter().enumerate().try_for_each(|(k, x)| finite(f64::from(*x), || format!("{}[{k}]", path())))
-                };
-                if let Some(c) = &f.centre {
-                    f32s(c, &|| "centre".into())?;
-                }
-                for (i, b) in f.entered.iter().enumerate() {
-                    count(b.class.len(), MAX_NAME_LEN, "class")?;
-                    f32s(&b.half_extents_m, &|| format!("entered[{i}].half_extents_m"))?;
-                    f32s(&b.offset_m, &|| format!("entered[{i}].offset_m"))?;
-                    if let Some(r) = &b.rotation {
-                        r.iter().try_for_each(|x| finite(f64::from(*x), || format!("entered[{i}].rotation")))?;
-                    }
-                    // Any size a scene may hold (static ground can be kilometres): finite only.
-                    let sizes: Vec<f64> = match &b.local_shape {
-                        Some(ShapeSpec::Sphere { radius_m }) => vec![*radius_m],
-                        Some(ShapeSpec::Capsule { half_height_m, radius_m }) => vec![*half_height_m, *radius_m],
-                        Some(ShapeSpec::Cuboid { half_extents_m: d } | ShapeSpec::Ellipsoid { radii_m: d }) => {
-                            d.to_vec()
-                        }
-                        Some(ShapeSpec::Convex { .. } | ShapeSpec::Mesh { .. }) | None => Vec::new(),
-                    };
-                    sizes.iter().try_for_each(|x| finite(*x, || format!("entered[{i}].local_shape")))?;
-                    game_state(&b.state, &|| format!("entered[{i}].state"))?;
-                }
-                for (i, m) in f.moved.iter().enumerate() {
-                    f32s(&m.1, &|| format!("moved[{i}].position"))?;
-                    f32s(&m.2, &|| format!("moved[{i}].velocity"))?;
-                }
-                if let Some(a) = &f.avatar {
-                    coord3(&a.position, || "avatar.position".into())?;
-                    vec3(&a.velocity, f64::MAX, "speed", || "avatar.velocity".into())?;
-                    for (i, t) in a.touching.iter().enumerate() {
-                        vec3(&t.normal, 1.0 + 1e-6, "length", || format!("avatar.touching[{i}].normal"))?;
-                        finite(t.depth_m, || format!("avatar.touching[{i}].depth_m"))?;
-                        finite(t.impulse, || format!("avatar.touching[{i}].impulse"))?;
-                        vec3(&t.friction_impulse, f64::MAX, "size", || {
-                            format!("avatar.touching[{i}].friction_impulse")
-                        })?;
-                    }
-                }
-                Ok(())
-            }
+            ServerMessage::State(f) => f.validate(),
             ServerMessage::Ack(_)
             | ServerMessage::Reject(_)
             | ServerMessage::Welcome(_)
@@ -371,5 +329,49 @@ impl Validate for ServerMessage {
             // `scene_hash`.
             ServerMessage::Scene(_) => Ok(()),
         }
+    }
+}
+
+impl Validate for StateFrame {
+    fn validate(&self) -> Result<(), ProtocolError> {
+        let f = self;
+        let f32s = |v: &[f32; 3], path: &dyn Fn() -> String| {
+            v.iter().enumerate().try_for_each(|(k, x)| finite(f64::from(*x), || format!("{}[{k}]", path())))
+        };
+        if let Some(c) = &f.centre {
+            f32s(c, &|| "centre".into())?;
+        }
+        for (i, b) in f.entered.iter().enumerate() {
+            count(b.class.len(), MAX_NAME_LEN, "class")?;
+            f32s(&b.half_extents_m, &|| format!("entered[{i}].half_extents_m"))?;
+            f32s(&b.offset_m, &|| format!("entered[{i}].offset_m"))?;
+            if let Some(r) = &b.rotation {
+                r.iter().try_for_each(|x| finite(f64::from(*x), || format!("entered[{i}].rotation")))?;
+            }
+            // Any size a scene may hold (static ground can be kilometres): finite only.
+            let sizes: Vec<f64> = match &b.local_shape {
+                Some(ShapeSpec::Sphere { radius_m }) => vec![*radius_m],
+                Some(ShapeSpec::Capsule { half_height_m, radius_m }) => vec![*half_height_m, *radius_m],
+                Some(ShapeSpec::Cuboid { half_extents_m: d } | ShapeSpec::Ellipsoid { radii_m: d }) => d.to_vec(),
+                Some(ShapeSpec::Convex { .. } | ShapeSpec::Mesh { .. }) | None => Vec::new(),
+            };
+            sizes.iter().try_for_each(|x| finite(*x, || format!("entered[{i}].local_shape")))?;
+            game_state(&b.state, &|| format!("entered[{i}].state"))?;
+        }
+        for (i, m) in f.moved.iter().enumerate() {
+            f32s(&m.1, &|| format!("moved[{i}].position"))?;
+            f32s(&m.2, &|| format!("moved[{i}].velocity"))?;
+        }
+        if let Some(a) = &f.avatar {
+            coord3(&a.position, || "avatar.position".into())?;
+            vec3(&a.velocity, f64::MAX, "speed", || "avatar.velocity".into())?;
+            for (i, t) in a.touching.iter().enumerate() {
+                vec3(&t.normal, 1.0 + 1e-6, "length", || format!("avatar.touching[{i}].normal"))?;
+                finite(t.depth_m, || format!("avatar.touching[{i}].depth_m"))?;
+                finite(t.impulse, || format!("avatar.touching[{i}].impulse"))?;
+                vec3(&t.friction_impulse, f64::MAX, "size", || format!("avatar.touching[{i}].friction_impulse"))?;
+            }
+        }
+        Ok(())
     }
 }

@@ -31,6 +31,23 @@ proptest! {
         }
     }
 
+    /// The state thread's own MessagePack writer gives the bytes serde gives, byte for byte,
+    /// and so decodes to the same frame (with more bodies than a short array holds, too).
+    #[test]
+    fn a_state_frame_is_written_as_serde_writes_it(msg in state_frame()) {
+        let ServerMessage::State(f) = msg else { unreachable!() };
+        let mut long = f.clone();
+        long.moved = f.moved.iter().cycle().take(17 * f.moved.len()).copied().collect();
+        long.left = f.left.iter().cycle().take(17 * f.left.len()).copied().collect();
+        for f in [f, long] {
+            let mut hand = vec![0xff];
+            f.encode_msgpack(&mut hand).unwrap();
+            prop_assert_eq!(hand[0], 0xff, "written after what the buffer held");
+            let msg = ServerMessage::State(f);
+            prop_assert_eq!(&hand[1..], &encode(&msg, Encoding::MsgPack).unwrap()[..]);
+        }
+    }
+
     /// MessagePack and JSON carry the same structure: decoding the MessagePack bytes into a
     /// generic JSON value gives the same document as the JSON encoding.
     #[test]
@@ -57,4 +74,23 @@ fn messages_are_tagged_maps() {
     assert_eq!(json["type"], "input");
     assert_eq!(json["actions"][0]["type"], "despawn");
     assert_eq!(json["tick"], 100);
+}
+
+/// The state writer refuses what `encode` refuses: a frame with a non-finite number.
+#[test]
+fn the_state_writer_refuses_a_non_finite_frame() {
+    let frame = StateFrame {
+        tick: Tick(3),
+        frame: 1,
+        full: false,
+        entered: Vec::new(),
+        moved: vec![BodyMotion(EntityId(4), [0.0, f32::NAN, 0.0], [0.0; 3], false)],
+        left: Vec::new(),
+        deferred: 0,
+        centre: None,
+        avatar: None,
+    };
+    let mut out = Vec::new();
+    assert!(frame.encode_msgpack(&mut out).is_err());
+    assert!(encode(&ServerMessage::State(frame), Encoding::MsgPack).is_err());
 }

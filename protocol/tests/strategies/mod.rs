@@ -280,7 +280,7 @@ fn stats() -> impl Strategy<Value = ServerMessage> {
         })
 }
 
-fn state_frame() -> impl Strategy<Value = ServerMessage> {
+pub fn state_frame() -> impl Strategy<Value = ServerMessage> {
     (
         tick(),
         any::<u32>(),
