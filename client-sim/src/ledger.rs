@@ -103,9 +103,7 @@ impl Ledger {
     /// Seqs an ack's `accepted_before` named accepted (their own acks may have been lost).
     pub fn acked_before(&mut self, seqs: impl Iterator<Item = u32>) {
         for seq in seqs {
-            self.owed.remove(&seq);
-            self.excused.remove(&seq);
-            self.acked.insert(seq);
+            self.accepted(seq);
         }
     }
 
