@@ -4,7 +4,7 @@ use super::egress::{self, Out};
 use super::error::RuntimeError;
 use super::metrics::{Metrics, Totals};
 use super::owner::{epoch_of, Owner};
-use super::state::{stream_frame, Capture, StateCounters, StateOptions, Watcher};
+use super::state::{Capture, StateCounters, StateOptions, Watcher};
 use super::timing::LeadEstimator;
 use crate::rollback::RollbackConfig;
 use impact_core::scene::Scene;
@@ -204,8 +204,6 @@ struct ClientState {
     events_key: String,
     /// It asked for a full state frame (after a gap); cleared once a capture carries the ask.
     want_full: bool,
-    /// Its state stream's frame ([`stream_frame`]) the last capture carried.
-    state_frame: Option<u64>,
 }
 
 /// Counters shared with the callbacks.

@@ -1,8 +1,7 @@
 //! `impact-bench state`: what the state streams cost, without the network. The arena with N
-//! players (spawned as the server spawns them, wandering), stepped at 64 Hz; at each tick some
-//! players' state frames are due ([`stream_frame`]: each stream `--hz` frames a second, spread
-//! over the ticks), the tick thread's copy ([`Capture::of`]) and the state thread's work (areas of
-//! interest, deltas, budgets, encoding: [`Streams::frames`]) are timed beside the tick itself. Publishing
+//! players (spawned as the server spawns them, wandering), stepped at 64 Hz; at each state frame
+//! the tick thread's copy ([`Capture::of`]) and the state thread's work (areas of interest,
+//! deltas, budgets, encoding: [`Streams::frames`]) are timed beside the tick itself. Publishing
 //! (Zenoh puts) is not in these figures; the load test in BENCHMARKS.md has it.
 
 use super::report::{json_line, median_ms, progress};
@@ -11,7 +10,7 @@ use clap::Args;
 use impact_core::scene::{avatar_position, Scene};
 use impact_core::sim::{Plan, Stepper, SystemAction, TickInput, TickOutput};
 use impact_protocol::{Action, ClientId, Encoding, WorldId};
-use impact_server::runtime::state::{stream_frame, Capture, StateOptions, Streams, Watcher};
+use impact_server::runtime::state::{Capture, StateOptions, Streams, Watcher};
 use serde_json::json;
 use std::time::{Duration, Instant};
 
@@ -27,7 +26,7 @@ pub struct StateArgs {
     /// Byte budget per client per second.
     #[arg(long, default_value_t = StateOptions::default().bytes_per_s)]
     budget: u32,
-    /// State frames per second on each stream.
+    /// State frames per second.
     #[arg(long, default_value_t = 20)]
     hz: u32,
     /// Simulated seconds per run (64 ticks each).
@@ -115,20 +114,13 @@ fn one(a: &StateArgs, clients: u32, aoi: f64) -> Result<Figures> {
     let avatars: Vec<Watcher> = out
         .spawned
         .iter()
-        .map(|(client, entity)| Watcher {
-            client: *client,
-            avatar: *entity,
-            encoding: Encoding::MsgPack,
-            full: false,
-            due: false,
-        })
+        .map(|(client, entity)| Watcher { client: *client, avatar: *entity, encoding: Encoding::MsgPack, full: false })
         .collect();
     let opts = StateOptions { hz: a.hz, aoi_m: aoi, bytes_per_s: a.budget, ..StateOptions::default() };
     let mut streams = Streams::new(WorldId::new("arena").map_err(anyhow::Error::msg)?, opts, Encoding::MsgPack);
     let (mut ticks, mut copies, mut frames) = (Vec::new(), Vec::new(), Vec::new());
     let (mut bytes, mut client_frames, mut deferred) = (0u64, 0u64, 0u64);
-    let mut last_frame: Vec<Option<u64>> = vec![None; avatars.len()];
-    let mut watchers = avatars.clone();
+    let mut last_frame = None;
     let mut rng = 0x9e37_79b9_7f4a_7c15u64;
     for t in 1..=(a.seconds * tick_hz) {
         // Every player steers every 16 ticks (a wandering walk at up to 6 m/s).
@@ -152,18 +144,13 @@ fn one(a: &StateArgs, clients: u32, aoi: f64) -> Result<Figures> {
         let t0 = Instant::now();
         stepper.step(&mut w, &inputs, &mut out);
         ticks.push(t0.elapsed());
-        let mut any = false;
-        for (v, last) in watchers.iter_mut().zip(&mut last_frame) {
-            let frame = Some(stream_frame(Some(v.client), w.tick, a.hz, tick_hz));
-            v.due = *last != frame;
-            *last = frame;
-            any |= v.due;
-        }
-        if !any {
+        let frame = u64::from(t) * u64::from(a.hz) / u64::from(tick_hz);
+        if last_frame == Some(frame) {
             continue;
         }
+        last_frame = Some(frame);
         let t1 = Instant::now();
-        let cap = Capture::of(&w, watchers.clone());
+        let cap = Capture::of(&w, avatars.clone());
         copies.push(t1.elapsed());
         let t2 = Instant::now();
         let published = streams.frames(&cap, false, false);

@@ -54,7 +54,7 @@ pub(super) struct TickLoop {
     /// Where state captures go (`None`: no state streams).
     pub(super) state_tx: Option<SyncSender<Capture>>,
     pub(super) state_counters: Arc<StateCounters>,
-    /// The world stream's frame the last capture carried.
+    /// The state frame the last capture was for.
     pub(super) state_frame: Option<u64>,
     pub(super) metrics: Option<WorldMetrics>,
     pub(super) period_events: u64,
@@ -184,7 +184,6 @@ impl TickLoop {
             ack_key: keys::CLIENT_ACK.key(&self.world, Some(client)),
             events_key: keys::CLIENT_EVENTS.key(&self.world, Some(client)),
             want_full: false,
-            state_frame: None,
         }
     }
 

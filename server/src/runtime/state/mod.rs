@@ -3,12 +3,9 @@
 //! (PROTOCOL.md, "State streams").
 //!
 //! The tick thread only copies what moves (positions, velocities, sleep flags: three arrays)
-//! and hands the copy to this module's thread through a queue of two, on every tick some
-//! stream's frame is due: the clients' frames are spread over the ticks ([`stream_frame`]), so
-//! each tick's copy carries a like share of them. A copy that finds the queue full is skipped
-//! and counted (its streams are due again on the next tick). Everything else runs here: the
-//! area-of-interest search, each receiver's delta against what it holds, the budget, encoding
-//! and publishing.
+//! and hands the copy to this module's thread through a queue of two; a frame that finds the
+//! queue full is skipped and counted. Everything else runs here: the area-of-interest search,
+//! each receiver's delta against what it holds, the budget, encoding and publishing.
 //!
 //! Each receiver's held set is the bodies it was last sent, with the motion and the tick it was
 //! sent at. A receiver draws a body carried from that at its velocity, so a body is sent again
@@ -65,21 +62,6 @@ pub struct Watcher {
     pub encoding: Encoding,
     /// It asked for a full frame (after a gap in its frame numbers).
     pub full: bool,
-    /// Its stream's next frame is due with this capture ([`stream_frame`]); the others are
-    /// listed so the thread knows they are still there.
-    pub due: bool,
-}
-
-/// The frame a stream is on at `tick`: `hz` frames a second, each client's stream offset by its
-/// id (the world stream, `None`, by none), so each tick builds a like share of the clients'
-/// frames rather than every one of them on one tick in `tick_hz / hz` (a burst the tick waited
-/// behind on a shared core, and the acks behind in the links' queues). A stream is due on the
-/// tick its number changes.
-pub fn stream_frame(client: Option<ClientId>, tick: Tick, hz: u32, tick_hz: u32) -> u64 {
-    let tick_hz = u64::from(tick_hz.max(1));
-    // Ids are handed out in turn: the odd multiplier spreads runs and strides of them alike.
-    let offset = client.map_or(0, |c| u64::from(c.0.wrapping_mul(0x9e37_79b9)) % tick_hz);
-    (u64::from(tick.0) * u64::from(hz) + offset) / tick_hz
 }
 
 /// What the tick thread hands over: the moving state of one tick, and the parts that do not
@@ -105,15 +87,12 @@ pub struct Capture {
     pub statics: Arc<StaticWorld>,
     /// Class names and whether each is static.
     pub config: Arc<SimConfig>,
-    /// Clients with an avatar (those whose frame is due, and the others).
+    /// Clients with an avatar.
     pub watchers: Vec<Watcher>,
-    /// The world stream's frame is due with it.
-    pub world: bool,
 }
 
 impl Capture {
-    /// Copies what moves out of `world`, with the world stream's frame due (the tick thread
-    /// sets [`Capture::world`] as its schedule says).
+    /// Copies what moves out of `world`.
     pub fn of(world: &impact_core::sim::World, watchers: Vec<Watcher>) -> Capture {
         let b = &world.bodies;
         let mut avatars: Vec<EntityId> = watchers.iter().map(|v| v.avatar).collect();
@@ -131,7 +110,6 @@ impl Capture {
             statics: world.statics.clone(),
             config: world.config.clone(),
             watchers,
-            world: true,
         }
     }
 }
@@ -187,6 +165,7 @@ pub struct Streams {
     encoding: Encoding,
     world: Held,
     clients: BTreeMap<ClientId, Held>,
+    frames: u32,
     entries: Vec<Entry>,
     /// The bodies no larger than half `aoi_m`, by cell of half `aoi_m`.
     grid: AreaGrid,
@@ -241,6 +220,7 @@ impl Streams {
             encoding,
             world: Held::default(),
             clients: BTreeMap::new(),
+            frames: 0,
             entries: Vec::new(),
             grid: AreaGrid::default(),
             filed: Vec::new(),
@@ -260,40 +240,36 @@ impl Streams {
         self.counts
     }
 
-    /// Builds this capture's frames: the world stream's (when due, and `world` says someone
-    /// listens), then each due viewer's. `keep` keeps the decoded frames in the result (tests).
+    /// Builds this capture's frames: the world stream's (when `world` says someone listens),
+    /// then each viewer's. `keep` keeps the decoded frames in the result (tests).
     pub fn frames(&mut self, cap: &Capture, world: bool, keep: bool) -> Vec<Publish> {
         self.index(cap);
-        let every = self.opts.full_every.max(1);
-        let mut out = Vec::with_capacity(cap.watchers.iter().filter(|v| v.due).count() + 1);
+        let full = self.frames % self.opts.full_every.max(1) == 0;
+        self.frames = self.frames.wrapping_add(1);
+        let mut out = Vec::with_capacity(cap.watchers.len() + 1);
         // The world stream: every body, no budget; skipped while nobody listens, and full again
         // for whoever comes.
-        if cap.world && world {
+        if world {
             let all: Vec<(f64, u32)> = (0..self.entries.len() as u32).map(|i| (0.0, i)).collect();
             let world_key = self.world_key.clone();
-            let full = self.world.frame % every == 0 || self.world.bodies.is_empty();
+            let full = full || self.world.bodies.is_empty();
             let frame =
                 build(&mut self.world, (&self.entries, &self.remap), &mut self.marks, cap, &all, None, full, None);
             out.extend(publish(world_key, None, frame, self.encoding, keep));
-        } else if cap.world {
+        } else {
             self.world.bodies.clear();
         }
         // Client streams.
         let per_frame = f64::from(self.opts.bytes_per_s) / f64::from(self.opts.hz.max(1));
         let cap_tokens = f64::from(self.opts.bytes_per_s).max(per_frame);
-        let mut seen = Vec::with_capacity(cap.watchers.len());
+        let mut seen = std::collections::BTreeSet::new();
         touches_of(cap, &mut self.touches);
         for v in &cap.watchers {
-            if !v.due {
-                // Not its turn: it is still there, holding what it was sent.
-                seen.push(v.client);
-                continue;
-            }
             let Ok(at) = self.entries.binary_search_by_key(&v.avatar, |e| e.motion.0) else {
                 continue;
             };
             let centre = self.entries[at];
-            seen.push(v.client);
+            seen.insert(v.client);
             let c =
                 DVec3::new(f64::from(centre.motion.1[0]), f64::from(centre.motion.1[1]), f64::from(centre.motion.1[2]));
             self.near(c);
@@ -303,9 +279,8 @@ impl Streams {
                 ..Held::default()
             });
             held.tokens = (held.tokens + per_frame).min(cap_tokens);
-            // Every `full_every` frames of its stream full (a new receiver starts with one), and
-            // when it asked.
-            let full = held.frame % every == 0 || v.full;
+            // A new receiver starts from a full frame, and one that asked for it gets one.
+            let full = full || held.frame == 0 || v.full;
             let at = (&self.entries[..], &self.remap);
             let mut frame = build(held, at, &mut self.marks, cap, &self.scratch, Some(held.tokens), full, Some(c));
             frame.avatar = avatar_state(cap, v.avatar, &self.touches);
@@ -316,9 +291,7 @@ impl Streams {
             out.extend(publish(held.key.clone(), Some(v.client), frame, v.encoding, keep));
         }
         // A client gone (or without an avatar) starts again from a full frame when it returns.
-        // (The watchers come in client order from the tick thread: the sort only checks.)
-        seen.sort_unstable();
-        self.clients.retain(|c, _| seen.binary_search(c).is_ok());
+        self.clients.retain(|c, _| seen.contains(c));
         out
     }
 
@@ -467,13 +440,7 @@ mod tests {
                     owner: Some(ClientId(k + 1)),
                 })
                 .unwrap();
-            watchers.push(Watcher {
-                client: ClientId(k + 1),
-                avatar: id,
-                encoding: Encoding::MsgPack,
-                full: false,
-                due: true,
-            });
+            watchers.push(Watcher { client: ClientId(k + 1), avatar: id, encoding: Encoding::MsgPack, full: false });
         }
         (w, watchers)
     }
@@ -512,38 +479,6 @@ mod tests {
             ServerMessage::State(f) => f,
             other => panic!("{other:?}"),
         }
-    }
-
-    /// Each client's stream gets its `hz` frames a second, and each tick builds a like share of
-    /// them: not every client's frame on one tick in three and none on the others.
-    #[test]
-    fn the_clients_frames_are_spread_over_the_ticks() {
-        let (hz, tick_hz, n) = (20, 64, 1000usize);
-        let mut last = vec![None; n];
-        let mut frames = vec![0u32; n];
-        let mut due_per_tick = Vec::new();
-        for t in 0..=640 {
-            let mut due = 0;
-            for (c, last) in last.iter_mut().enumerate() {
-                let f = Some(stream_frame(Some(ClientId(c as u32 + 1)), Tick(t), hz, tick_hz));
-                if last.is_some() && *last != f {
-                    (frames[c], due) = (frames[c] + 1, due + 1);
-                }
-                *last = f;
-            }
-            if t > 0 {
-                due_per_tick.push(due);
-            }
-        }
-        // Ten seconds: 200 frames each (one more or less by where its offset falls).
-        assert!(frames.iter().all(|f| (199..=201).contains(f)), "{:?}", (frames.iter().min(), frames.iter().max()));
-        // A tick's share is n * hz / tick_hz = 312.5 frames, give or take the offsets' spread.
-        let (lo, hi) = (due_per_tick.iter().min().unwrap(), due_per_tick.iter().max().unwrap());
-        assert!(*lo >= 280 && *hi <= 345, "frames due on a tick: {lo} to {hi}");
-        // The world stream: its 20 a second on the ticks they fall on.
-        let world: std::collections::BTreeSet<u64> =
-            (0..64).map(|t| stream_frame(None, Tick(t), hz, tick_hz)).collect();
-        assert_eq!(world.len(), 20);
     }
 
     /// A receiver draws each body carried from its last sample at its velocity; the world stream

@@ -24,8 +24,8 @@ struct Listener {
 
 /// The state thread: builds and publishes frames for every capture until the queue closes.
 ///
-/// Streams nobody subscribes to are not built: the world stream's publisher is asked at each of
-/// its frames, each client's once a second (a client that subscribes is seen within a second and starts with
+/// Streams nobody subscribes to are not built: the world stream's publisher is asked every frame,
+/// each client's once a second (a client that subscribes is seen within a second and starts with
 /// a full frame), so players that never look at the state cost only the question.
 pub fn run(
     session: zenoh::Session,
@@ -41,10 +41,11 @@ pub fn run(
     let publisher = |key: String| session.declare_publisher(key).congestion_control(drop).wait().ok();
     let world_publisher = publisher(keys::STATE.key(&world, None));
     let mut listeners: BTreeMap<ClientId, Listener> = BTreeMap::new();
+    let check_every = u64::from(opts.hz.max(1));
     let mut streams = Streams::new(world.clone(), opts, encoding);
-    for mut cap in rx {
+    for (n, mut cap) in rx.into_iter().enumerate() {
         let t0 = Instant::now();
-        let (n, check_every) = (u64::from(cap.tick.0), u64::from(cap.config.tick_hz.max(1)));
+        let n = n as u64;
         // Forget the clients gone (a search each, not a pass over the watchers each).
         let mut watching: Vec<ClientId> = cap.watchers.iter().map(|v| v.client).collect();
         watching.sort_unstable();
@@ -61,8 +62,7 @@ pub fn run(
             }
             l.listening
         });
-        let world = cap.world && matching(world_publisher.as_ref());
-        let frames = streams.frames(&cap, world, false);
+        let frames = streams.frames(&cap, matching(world_publisher.as_ref()), false);
         let mut deferred = 0;
         for p in frames {
             let len = p.bytes.len() as u64;
