@@ -140,8 +140,9 @@ impl Clock {
     /// `input_lead_ticks`), so the lead it carried (`tick - view`) was too much by the excess.
     /// The lead drops at once to one tick under what would have fitted (a burst of such rejects
     /// lowers it once, not once each). Without this a client whose lead was raised by a delay
-    /// spike (or by a view that lagged: the server recommends the delay it saw plus what it
-    /// accepts ahead) overshoots once the delay falls back, every input is refused, and no ack
+    /// spike or a view that lagged (the server caps what it recommends at what its quickest
+    /// recent input would have been accepted with, but the delay can fall lower still) overshoots
+    /// once the delay falls back, every input is refused, and no ack
     /// ever comes to lower it (a soak refused 31 % of inputs that way). A view past the server's
     /// present at the input's arrival by more than [`RESYNC_TICKS`] is not the lead's fault but
     /// the server's tick jumping back: the clock's resync corrects that, and lowering the lead

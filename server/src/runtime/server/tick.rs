@@ -611,16 +611,14 @@ impl TickLoop {
                 Ok(applied) => {
                     self.summary.inputs_accepted += 1;
                     self.admitted.inputs.push(LoggedInput { tick: applied, ..logged });
-                    // The most a client can lead by and still be accepted: its round trip (the
-                    // smallest lead that is on time) plus the ticks the server accepts ahead. A
-                    // copy whose first message was lost arrived an input later than the path
+                    // A copy whose first message was lost arrived an input later than the path
                     // takes: no lead would have made it on time, and raising everyone's lead for
                     // it pushes their next inputs past the ticks accepted ahead (`future`).
-                    let max_lead = now.0.saturating_sub(view.0).saturating_add(self.session.config().lead_ticks);
+                    let accepted_ahead = self.session.config().lead_ticks;
                     let lead_ticks = if copy {
-                        state.timing.lead().min(max_lead)
+                        state.timing.lead(accepted_ahead)
                     } else {
-                        state.timing.observe(now, view, max_lead)
+                        state.timing.observe(now, view, accepted_ahead)
                     };
                     let margin_ticks = (i64::from(applied.0) - i64::from(now.0)).clamp(-1 << 30, 1 << 30) as i32;
                     let ack = ServerMessage::Ack(InputAck {
