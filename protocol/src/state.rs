@@ -188,12 +188,10 @@ pub struct AvatarTouch {
 
 impl StateFrame {
     /// The frame as a `state` message in MessagePack, onto the end of `out`: the bytes
-    /// `encode_into(&ServerMessage::State(frame), Encoding::MsgPack, out)` writes, after the same
-    /// validation, but written directly where a frame is mostly made of (its fields, `moved`,
-    /// `left`); the entered bodies' infos and the avatar's state go through serde. The server's
-    /// state thread encodes twenty thousand frames a second with it.
-    ///
-    /// [`encode_into`](crate::encode_into)
+    /// [`encode_into`](crate::encode_into)`(&ServerMessage::State(frame), Encoding::MsgPack, out)`
+    /// writes, after the same validation, but written directly where a frame is mostly made of
+    /// (its fields, `moved`, `left`); the entered bodies' infos and the avatar's state go through
+    /// serde. The server's state thread encodes twenty thousand frames a second with it.
     pub fn encode_msgpack(&self, out: &mut Vec<u8>) -> Result<(), crate::ProtocolError> {
         use crate::Validate;
         let malformed = |e: rmp_serde::encode::Error| crate::ProtocolError::Malformed {
