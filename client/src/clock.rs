@@ -4,9 +4,13 @@
 //! It is anchored by the welcome (the server's tick and tick rate when it sent it) and counts
 //! ticks from there on the local clock the caller passes in (nothing here reads a clock). Every
 //! message that names the server's tick (acks, event batches, the once-a-second stats) is an
-//! observation: one more than [`RESYNC_TICKS`] off re-anchors the clock at once (the server's
-//! tick fell behind wall time: it drops a backlog after a stall rather than running fast), and a
-//! smaller drift is followed once per [`DRIFT_WINDOW`] when every observation in it agrees.
+//! observation. One more than [`RESYNC_TICKS`] ahead of the clock re-anchors it at once (no
+//! message arrives before it was sent: the clock is behind). One more than that behind is either
+//! a late message (the client or the path stalled, and what queued meanwhile arrives at once) or
+//! a server whose tick fell behind wall time (it drops a backlog after a stall rather than
+//! running fast): only the second goes on naming old ticks, so the clock follows them back once
+//! they have for [`SLIP_CONFIRM_TICKS`] of its own time, to the least late of them. A smaller
+//! drift is followed once per [`DRIFT_WINDOW`] when every observation in it agrees.
 //!
 //! Inputs are stamped either behind (the tick the client sees: every input arrives a round trip
 //! late and the server rolls back for it) or ahead, by the lead the acks recommend: the first
@@ -27,6 +31,14 @@ pub const DILATION: f64 = 0.1;
 /// kept its old clock would stamp every later input in the future.
 pub const RESYNC_TICKS: u32 = 4;
 
+/// How long (ticks of the client's own time) observations past [`RESYNC_TICKS`] behind the clock
+/// must go on coming before the clock follows them back. A burst of late messages (what queued
+/// while the client's loop, its page or the path stalled) arrives within a fraction of a tick and
+/// is followed at once by a timely one, which ends the suspicion; a server that fell behind names
+/// old ticks in every message after. Following a burst back made the next inputs late or `stale`
+/// and the next timely message pushed the clock forward again, with a lead raised in between.
+pub const SLIP_CONFIRM_TICKS: f64 = 2.0;
+
 /// Drift smaller than [`RESYNC_TICKS`] is corrected once per window: if every tick heard in it
 /// was behind the clock (or every one ahead), the clock moves by the smallest such offset. The
 /// observation that came soonest is the best estimate of the server's tick (NTP keeps its
@@ -36,6 +48,15 @@ pub const RESYNC_TICKS: u32 = 4;
 /// inputs refused as `future` that way).
 pub const DRIFT_WINDOW: Duration = Duration::from_secs(1);
 
+/// Observations past the resync bound behind the clock (see [`SLIP_CONFIRM_TICKS`]).
+#[derive(Clone, Copy, Debug)]
+struct Behind {
+    since: Instant,
+    tick: Tick,
+    at: Instant,
+    off: i64,
+}
+
 /// The client's clock (see the module docs).
 #[derive(Clone, Debug, Default)]
 pub struct Clock {
@@ -43,6 +64,9 @@ pub struct Clock {
     anchor: Option<(Tick, Instant, u32)>,
     /// This window's start and the largest and smallest (observed - estimated) tick offsets.
     drift: Option<(Instant, i64, i64)>,
+    /// Observations past the resync bound behind the clock, since the first of them: when it
+    /// came, and the least late of them (its tick, when, and its offset).
+    behind: Option<Behind>,
     /// Ahead: the lead in use (ticks; `None` until the first ack recommends one), the lead
     /// recommended last, and when the lead was last moved.
     lead: Option<f64>,
@@ -61,6 +85,7 @@ impl Clock {
     pub fn anchor(&mut self, tick: Tick, tick_hz: u32, now: Instant) {
         self.anchor = Some((tick, now, tick_hz.max(1)));
         self.drift = None;
+        self.behind = None;
     }
 
     /// Whether the clock has been anchored.
@@ -85,17 +110,30 @@ impl Clock {
         self.server_ticks(now).map(|t| Tick(t as u32))
     }
 
-    /// The server named `tick` in a message that arrived `now`: re-anchors the clock if it has
-    /// drifted past [`RESYNC_TICKS`] (returns `true`), or follows a smaller drift once the window
-    /// agrees.
+    /// The server named `tick` in a message that arrived `now`: re-anchors the clock on a tick
+    /// past [`RESYNC_TICKS`] ahead of it, or on ticks that many behind once they have gone on for
+    /// [`SLIP_CONFIRM_TICKS`] (returns `true`), or follows a smaller drift once the window agrees.
     pub fn observe(&mut self, tick: Tick, now: Instant) -> bool {
         let (Some(est), Some((anchor, at, hz))) = (self.server_tick(now), self.anchor) else { return false };
-        if est.0.abs_diff(tick.0) > RESYNC_TICKS {
-            self.anchor = Some((tick, now, hz));
-            self.drift = None;
+        let off = i64::from(tick.0) - i64::from(est.0);
+        let bound = i64::from(RESYNC_TICKS);
+        if off > bound {
+            self.anchor(tick, hz, now);
             return true;
         }
-        let off = i64::from(tick.0) - i64::from(est.0);
+        if off < -bound {
+            let b = self.behind.get_or_insert(Behind { since: now, tick, at: now, off });
+            if off > b.off {
+                (b.tick, b.at, b.off) = (tick, now, off);
+            }
+            if now.saturating_duration_since(b.since).as_secs_f64() * f64::from(hz) < SLIP_CONFIRM_TICKS {
+                return false;
+            }
+            let (tick, at) = (b.tick, b.at);
+            self.anchor(tick, hz, at);
+            return true;
+        }
+        self.behind = None;
         let w = self.drift.get_or_insert((now, off, off));
         w.1 = w.1.max(off);
         w.2 = w.2.min(off);
@@ -218,21 +256,36 @@ mod tests {
         assert_eq!(c.stamp_rate(true), 1.0, "the lead reached: no dilation");
     }
 
-    /// A server that stalled and dropped its backlog is behind the client's clock: the first
-    /// message the client hears re-anchors it, so its inputs stop landing in the future. Jitter
-    /// within the bound leaves the clock alone.
+    /// A server that stalled and dropped its backlog names ticks behind the client's clock in
+    /// every message after: once they have gone on for SLIP_CONFIRM_TICKS the clock follows them
+    /// back (to the least late), so its inputs stop landing in the future. A burst of late
+    /// messages (the client stalled, and what queued arrives at once) followed by a timely one
+    /// leaves the clock alone, as does jitter within the bound; a tick ahead of the clock
+    /// re-anchors it at once.
     #[test]
-    fn a_stalled_server_re_anchors_the_clock_and_jitter_does_not() {
+    fn a_stalled_server_re_anchors_the_clock_and_late_messages_do_not() {
+        let ms = Duration::from_millis;
         let t0 = Instant::now();
         let mut c = clock(Tick(100), t0);
         let now = t0 + Duration::from_secs(1); // the clock says tick 164
         assert_eq!(c.server_tick(now), Some(Tick(164)));
         assert!(!c.observe(Tick(164 - RESYNC_TICKS), now), "jitter within the bound");
-        assert_eq!(c.server_tick(now), Some(Tick(164)));
-        // The server lost 0.4 s to a stall: its batches say 138.
-        assert!(c.observe(Tick(138), now));
-        assert_eq!(c.server_tick(now), Some(Tick(138)));
-        assert_eq!(c.server_tick(now + Duration::from_millis(500)), Some(Tick(170)));
+        // The client stalled for 0.4 s: what queued arrives at once, then a timely message.
+        for t in [138, 145, 152] {
+            assert!(!c.observe(Tick(t), now), "a late message alone is no slip");
+        }
+        assert!(!c.observe(Tick(163), now + ms(1)));
+        assert_eq!(c.server_tick(now + ms(1)), Some(Tick(164)), "the burst left the clock where it was");
+        // The server lost 0.4 s to a stall: its batches name ticks 26 behind, and go on doing so.
+        let t1 = now + ms(100); // the clock says 170
+        assert!(!c.observe(Tick(144), t1));
+        assert!(!c.observe(Tick(145), t1 + ms(16)), "a tick's time is not yet a slip");
+        assert!(c.observe(Tick(146), t1 + ms(32)), "two ticks' time: followed");
+        assert_eq!(c.server_tick(t1 + ms(32)), Some(Tick(146)));
+        assert_eq!(c.server_tick(t1 + ms(532)), Some(Tick(178)));
+        // A tick ahead of the clock re-anchors at once.
+        assert!(c.observe(Tick(200), t1 + ms(532)));
+        assert_eq!(c.server_tick(t1 + ms(532)), Some(Tick(200)));
     }
 
     /// A lead raised by a delay spike overshoots once the delay is back: the `future` reject

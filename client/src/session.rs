@@ -1525,17 +1525,21 @@ mod tests {
         let batch = |tick| ServerMessage::Events(EventBatch { tick: Tick(tick), revision: 0, events: vec![] });
         let confirmed = |tick| ServerMessage::Confirmed(EventBatch { tick: Tick(tick), revision: 0, events: vec![] });
         s.receive(batch(164), t0 + Duration::from_secs(1));
-        // Two seconds on, messages of tick 170 arrive (held on the client's side): newer than
-        // any before, yet old; the clock follows them back.
+        // Two seconds on, messages of ticks 170 to 172 arrive over 40 ms (2.6 ticks; held on
+        // the client's side): newer than any before, yet old, and going on long enough that the
+        // clock follows them back.
         let t = t0 + Duration::from_secs(3);
-        s.receive(batch(170), t);
-        assert!(s.clock().server_tick(t).is_some_and(|x| x.0 < 180));
+        for (k, tick) in (170..=172).enumerate() {
+            s.receive(batch(tick), t + Duration::from_millis(20 * k as u64));
+        }
+        let t = t + Duration::from_millis(40);
+        assert!(s.clock().server_tick(t).is_some_and(|x| x.0 < 180), "the clock followed them back");
         s.link_restored(t);
         // The server was at 164 two seconds before: about 292 now. Tick 250 was published
         // while the link was down.
-        // Ticks 164 and 170, held, are final with it: all three uncompared.
+        // Ticks 164 and 170 to 172, held, are final with it: all five uncompared.
         s.receive(confirmed(250), t);
-        assert_eq!((s.events().matched, s.events().unverified), (0, 3));
+        assert_eq!((s.events().matched, s.events().unverified), (0, 5));
     }
 
     /// Joins, probes one at a time, and plays once five answers came: the first lead is the

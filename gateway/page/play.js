@@ -4,10 +4,12 @@
 // src/clock.ts
 var DILATION = 0.1;
 var RESYNC_TICKS = 4;
+var SLIP_CONFIRM_TICKS = 2;
 var DRIFT_WINDOW_MS = 1e3;
 var Clock = class {
   anchorAt = null;
   drift = null;
+  behind = null;
   leadNow = null;
   leadTarget = 0;
   leadAtMs = null;
@@ -15,6 +17,7 @@ var Clock = class {
   anchor(tick, tickHz, nowMs) {
     this.anchorAt = { tick, atMs: nowMs, hz: Math.max(tickHz, 1) };
     this.drift = null;
+    this.behind = null;
   }
   get anchored() {
     return this.anchorAt !== null;
@@ -38,12 +41,19 @@ var Clock = class {
     const est = this.serverTick(nowMs);
     const a = this.anchorAt;
     if (est === null || !a) return false;
-    if (Math.abs(tick - est) > RESYNC_TICKS) {
-      this.anchorAt = { tick, atMs: nowMs, hz: a.hz };
-      this.drift = null;
+    const off = tick - est;
+    if (off > RESYNC_TICKS) {
+      this.anchor(tick, a.hz, nowMs);
       return true;
     }
-    const off = tick - est;
+    if (off < -RESYNC_TICKS) {
+      const b = this.behind ??= { sinceMs: nowMs, tick, atMs: nowMs, off };
+      if (off > b.off) Object.assign(b, { tick, atMs: nowMs, off });
+      if ((nowMs - b.sinceMs) / 1e3 * a.hz < SLIP_CONFIRM_TICKS) return false;
+      this.anchor(b.tick, a.hz, b.atMs);
+      return true;
+    }
+    this.behind = null;
     const w = this.drift ??= { startMs: nowMs, hi: off, lo: off };
     w.hi = Math.max(w.hi, off);
     w.lo = Math.min(w.lo, off);

@@ -4,22 +4,30 @@
 // reads a clock.
 //
 // Anchored by the welcome, it counts ticks from there. Every message naming the server's tick is
-// an observation: more than RESYNC_TICKS off re-anchors at once (the server fell behind wall
-// time), a smaller drift is followed once per DRIFT_WINDOW_MS when every observation in the
-// window agrees. Inputs are stamped behind (the tick seen) or ahead by the lead the acks
-// recommend, reached by time dilation (at most DILATION of the ticks elapsed), lowered at once by
-// a `future` reject (`backOff`).
+// an observation: more than RESYNC_TICKS ahead re-anchors at once (no message arrives before it
+// was sent); that far behind is a late message (the page or the path stalled) or a server that
+// fell behind wall time, and only the second goes on naming old ticks, so the clock follows them
+// back once they have for SLIP_CONFIRM_TICKS of its own time, to the least late of them; a
+// smaller drift is followed once per DRIFT_WINDOW_MS when every observation in the window
+// agrees. Inputs are stamped behind (the tick seen) or ahead by the lead the acks recommend,
+// reached by time dilation (at most DILATION of the ticks elapsed), lowered at once by a `future`
+// reject (`backOff`).
 
 /** The most the stamped ticks run fast or slow to reach a new lead: 10 %. */
 export const DILATION = 0.1;
 /** How far the clock may be from a tick the server names before it re-anchors. */
 export const RESYNC_TICKS = 4;
+/** How long (ticks of the client's own time) observations past RESYNC_TICKS behind must go on
+ * coming before the clock follows them back: what queued while a page was stalled arrives at
+ * once, then a timely message; a server that fell behind names old ticks in every message. */
+export const SLIP_CONFIRM_TICKS = 2;
 /** The window over which a small drift must agree before the clock follows it. */
 export const DRIFT_WINDOW_MS = 1000;
 
 export class Clock {
   private anchorAt: { tick: number; atMs: number; hz: number } | null = null;
   private drift: { startMs: number; hi: number; lo: number } | null = null;
+  private behind: { sinceMs: number; tick: number; atMs: number; off: number } | null = null;
   private leadNow: number | null = null;
   private leadTarget = 0;
   private leadAtMs: number | null = null;
@@ -28,6 +36,7 @@ export class Clock {
   anchor(tick: number, tickHz: number, nowMs: number): void {
     this.anchorAt = { tick, atMs: nowMs, hz: Math.max(tickHz, 1) };
     this.drift = null;
+    this.behind = null;
   }
 
   get anchored(): boolean {
@@ -56,12 +65,19 @@ export class Clock {
     const est = this.serverTick(nowMs);
     const a = this.anchorAt;
     if (est === null || !a) return false;
-    if (Math.abs(tick - est) > RESYNC_TICKS) {
-      this.anchorAt = { tick, atMs: nowMs, hz: a.hz };
-      this.drift = null;
+    const off = tick - est;
+    if (off > RESYNC_TICKS) {
+      this.anchor(tick, a.hz, nowMs);
       return true;
     }
-    const off = tick - est;
+    if (off < -RESYNC_TICKS) {
+      const b = (this.behind ??= { sinceMs: nowMs, tick, atMs: nowMs, off });
+      if (off > b.off) Object.assign(b, { tick, atMs: nowMs, off });
+      if (((nowMs - b.sinceMs) / 1000) * a.hz < SLIP_CONFIRM_TICKS) return false;
+      this.anchor(b.tick, a.hz, b.atMs);
+      return true;
+    }
+    this.behind = null;
     const w = (this.drift ??= { startMs: nowMs, hi: off, lo: off });
     w.hi = Math.max(w.hi, off);
     w.lo = Math.min(w.lo, off);
