@@ -436,6 +436,11 @@ pub struct Session {
     /// message published at or past it was published after the link came back, and every tick
     /// before its present may have lost events (see [`Session::published_at`]).
     path_check: Option<Tick>,
+    /// The link was restored before the welcome (or messages were lost on the events key),
+    /// with no estimate of the server's present to say which ticks it lost: until the welcome
+    /// gives one, every tick an events-key message names is taken as lost up to it (see
+    /// [`Session::receive_from`]).
+    lost_unwelcomed: bool,
     /// After a second welcome: which inputs it left unaccepted, answered lost once an input made
     /// after it is acked.
     lost_check: Option<LostCheck>,
@@ -483,6 +488,7 @@ impl Session {
             numbers: [KeyNumbers::default(); OwnKey::COUNT],
             lost_check: None,
             path_check: None,
+            lost_unwelcomed: false,
             newest_named: None,
             recovery: BTreeMap::new(),
         }
@@ -807,12 +813,14 @@ impl Session {
                 self.stats.messages_lost += lost;
                 if lost > 0 && key == OwnKey::Events {
                     self.link_restored(now);
-                    if self.path_check.is_none() {
-                        // No estimate of the server's present yet (before the welcome): the
-                        // message itself gives one once taken.
-                        self.receive(msg, now);
-                        self.link_restored(now);
-                        return;
+                }
+                if self.lost_unwelcomed {
+                    // Lost before the welcome: each message's tick and those before it, until
+                    // the welcome's present covers the rest (see [`Session::link_restored`]).
+                    if let ServerMessage::Events(b) | ServerMessage::Confirmed(b) = &msg {
+                        self.events.lost_before(b.tick.next());
+                    } else if let ServerMessage::Corrections(c) = &msg {
+                        self.events.lost_before(c.tick.next());
                     }
                 }
             }
@@ -827,7 +835,8 @@ impl Session {
     /// `matched: false`, so a game redraws them from the confirmed events). The client's link
     /// being back does not mean the server's is (a restarted router: each side reconnects in its
     /// own time), so the ticks before the server's present when it published the first message
-    /// heard since are taken the same way.
+    /// heard since are taken the same way. Before the welcome, the ticks of the events-key
+    /// messages heard until it comes are, and those before its present.
     pub fn link_restored(&mut self, now: Instant) {
         // The clock's estimate of the server's present (or the newest tick held), and a margin
         // for an estimate a little behind: a tick left out of the comparison costs nothing, a
@@ -841,6 +850,11 @@ impl Session {
             self.events.lost_before(Tick(t.0.saturating_add(MARGIN_TICKS)));
             self.path_check = Some(t);
         }
+        // No estimate of the server's present before the welcome (it comes on another key, and
+        // may come after the events key's first messages: a client back on a new session, whose
+        // keys the server published on while it was away): the ticks lost are not known until
+        // it comes, and it restores the link again from its tick.
+        self.lost_unwelcomed |= !self.clock.is_anchored();
     }
 
     /// A tick whose confirmed batch this client missed (a later one came while it held events
@@ -1027,6 +1041,11 @@ impl Session {
     fn welcomed(&mut self, w: Welcome, now: Instant) {
         self.stats.welcomes += 1;
         self.clock.anchor(w.tick, w.tick_hz, now);
+        if std::mem::take(&mut self.lost_unwelcomed) {
+            // Events-key messages were lost before it: from its present on, as after a link
+            // restored (what was published before it may have been lost).
+            self.link_restored(now);
+        }
         if self.remote.as_ref().is_none_or(|r| r.config().tick_hz != w.tick_hz) {
             let cfg = RemoteConfig { delay_s: self.cfg.interpolation_delay_s, ..RemoteConfig::new(w.tick_hz) };
             self.remote = Some(RemoteWorld::new(cfg));
@@ -1377,6 +1396,35 @@ mod tests {
         late.receive_from(on(3), ServerMessage::Events(batch(102)), t0);
         late.receive_from(on(4), ServerMessage::Confirmed(batch(101)), t0);
         assert_eq!((late.stats().messages_lost, late.events().mismatched, late.events().unverified), (2, 0, 1));
+    }
+
+    /// A client back on a new session (or joining through a router) hears its events key
+    /// before the welcome, which comes on another key: the server published on the key while
+    /// it was away, and the first number heard is not 1. The ticks of what it hears before the
+    /// welcome, and those before them, are not compared (tick 84's events were the one lost,
+    /// and tick 80's confirmation was published after them), nor those before the welcome's
+    /// present (tick 100); from the first message published after it on, ticks are compared.
+    #[test]
+    fn a_skip_before_the_welcome_leaves_the_ticks_before_it_uncompared() {
+        let t0 = Instant::now();
+        let on = |n| Some(Stamp { epoch: Epoch(1), number: Some(n) });
+        let mut s = Session::new(SessionConfig::new(ClientId(7)));
+        s.receive_from(on(2), ServerMessage::Confirmed(batch(80)), t0);
+        s.receive_from(on(3), ServerMessage::Confirmed(batch(84)), t0);
+        assert_eq!((s.stats().messages_lost, s.events().mismatched, s.events().unverified), (1, 0, 2));
+        s.receive_from(on(1), welcome(0), t0);
+        s.receive_from(on(4), ServerMessage::Events(batch(105)), t0);
+        s.receive_from(on(5), ServerMessage::Events(batch(140)), t0);
+        s.receive_from(on(6), ServerMessage::Confirmed(batch(105)), t0);
+        assert_eq!((s.events().mismatched, s.events().unverified), (0, 3), "before the welcome's present");
+        s.receive_from(on(7), ServerMessage::Confirmed(batch(140)), t0);
+        assert_eq!((s.events().matched, s.events().mismatched), (1, 0), "published after the welcome: compared");
+
+        // The same messages with none lost: compared from the first.
+        let mut whole = Session::new(SessionConfig::new(ClientId(7)));
+        whole.receive_from(on(1), ServerMessage::Events(batch(95)), t0);
+        whole.receive_from(on(2), ServerMessage::Confirmed(batch(95)), t0);
+        assert_eq!(whole.events().matched, 1);
     }
 
     /// Welcomed again after a reconnect: an input sent before the welcome that the server never

@@ -2450,6 +2450,10 @@ var Session = class {
   lostCheck = null;
   /** After a restored link: the server's present then, as estimated; see `publishedAt`. */
   pathCheck = null;
+  /** The link was restored before the welcome, with no estimate of the server's present to say
+   * which ticks it lost: until the welcome gives one, each tick an events message names is taken
+   * as lost up to it, and the welcome restores the link again with its present. */
+  lostUnwelcomed = false;
   /** The newest tick the server named, and when: run on at the full rate for `linkRestored`. */
   newestNamed = null;
   /** The event view's ticks in doubt: since when, and whether the transport was given it. */
@@ -2524,18 +2528,21 @@ var Session = class {
         return;
       }
       case "events":
+        if (this.lostUnwelcomed) this.events.lostBefore(msg.tick + 1);
         this.observe(msg.tick, nowMs);
         this.stats.events += msg.events.length;
         this.events.events(msg);
         for (const event of msg.events) this.pushNews({ kind: "event", event });
         return;
       case "corrections":
+        if (this.lostUnwelcomed) this.events.lostBefore(msg.tick + 1);
         this.stats.corrections++;
         this.events.correct(msg);
         this.pushNews({ kind: "corrected", batch: msg });
         return;
       case "confirmed": {
         if (this.welcome) this.publishedAt(msg.tick + this.welcome.window_ticks);
+        if (this.lostUnwelcomed) this.events.lostBefore(msg.tick + 1);
         for (const f2 of this.events.confirm(msg)) this.pushNews({ kind: "confirmed", ...f2 });
         const doubtful = this.events.doubtful();
         for (const t of this.recovery.keys()) if (!doubtful.includes(t)) this.recovery.delete(t);
@@ -2572,6 +2579,11 @@ var Session = class {
    * heard since are not compared either. */
   linkRestored(nowMs) {
     this.stats.linksRestored++;
+    this.restoredAt(nowMs);
+  }
+  /** Ticks before the server's present at `nowMs`, as estimated, are not compared; before the
+   * welcome, with no estimate, until it comes (`lostUnwelcomed`). */
+  restoredAt(nowMs) {
     const MARGIN_TICKS = 8;
     const hz = this.clock.tickHz ?? 0;
     const runOn = this.newestNamed ? this.newestNamed.tick + (nowMs - this.newestNamed.atMs) / 1e3 * hz : null;
@@ -2581,6 +2593,7 @@ var Session = class {
       this.events.lostBefore(t + MARGIN_TICKS);
       this.pathCheck = t;
     }
+    if (!this.clock.anchored) this.lostUnwelcomed = true;
   }
   /** A message published when the server was at `present` arrived: the first since a restored
    * link published at or past the estimate then shows the path whole again, and every tick
@@ -2652,6 +2665,10 @@ var Session = class {
   welcomed(w, nowMs) {
     this.stats.welcomes++;
     this.clock.anchor(w.tick, w.tick_hz, nowMs);
+    if (this.lostUnwelcomed) {
+      this.lostUnwelcomed = false;
+      this.restoredAt(nowMs);
+    }
     if (!this.remote || this.remote.config.tickHz !== w.tick_hz) {
       this.remote = new RemoteWorld({ ...remoteConfig(w.tick_hz), delayS: this.config.interpolationDelayS });
     }

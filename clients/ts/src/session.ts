@@ -125,6 +125,10 @@ export class Session {
   private lostCheck: { welcomedMs: number; nextSeq: number } | null = null;
   /** After a restored link: the server's present then, as estimated; see `publishedAt`. */
   private pathCheck: number | null = null;
+  /** The link was restored before the welcome, with no estimate of the server's present to say
+   * which ticks it lost: until the welcome gives one, each tick an events message names is taken
+   * as lost up to it, and the welcome restores the link again with its present. */
+  private lostUnwelcomed = false;
   /** The newest tick the server named, and when: run on at the full rate for `linkRestored`. */
   private newestNamed: { tick: number; atMs: number } | null = null;
   /** The event view's ticks in doubt: since when, and whether the transport was given it. */
@@ -205,12 +209,14 @@ export class Session {
         return;
       }
       case "events":
+        if (this.lostUnwelcomed) this.events.lostBefore(msg.tick + 1);
         this.observe(msg.tick, nowMs);
         this.stats.events += msg.events.length;
         this.events.events(msg);
         for (const event of msg.events) this.pushNews({ kind: "event", event });
         return;
       case "corrections":
+        if (this.lostUnwelcomed) this.events.lostBefore(msg.tick + 1);
         this.stats.corrections++;
         this.events.correct(msg);
         this.pushNews({ kind: "corrected", batch: msg });
@@ -218,6 +224,7 @@ export class Session {
       case "confirmed": {
         // Published as the tick left the server's rollback window.
         if (this.welcome) this.publishedAt(msg.tick + this.welcome.window_ticks);
+        if (this.lostUnwelcomed) this.events.lostBefore(msg.tick + 1);
         for (const f of this.events.confirm(msg)) this.pushNews({ kind: "confirmed", ...f });
         const doubtful = this.events.doubtful();
         for (const t of this.recovery.keys()) if (!doubtful.includes(t)) this.recovery.delete(t);
@@ -255,6 +262,12 @@ export class Session {
    * heard since are not compared either. */
   linkRestored(nowMs: number): void {
     this.stats.linksRestored++;
+    this.restoredAt(nowMs);
+  }
+
+  /** Ticks before the server's present at `nowMs`, as estimated, are not compared; before the
+   * welcome, with no estimate, until it comes (`lostUnwelcomed`). */
+  private restoredAt(nowMs: number): void {
     const MARGIN_TICKS = 8;
     const hz = this.clock.tickHz ?? 0;
     const runOn = this.newestNamed ? this.newestNamed.tick + ((nowMs - this.newestNamed.atMs) / 1000) * hz : null;
@@ -264,6 +277,7 @@ export class Session {
       this.events.lostBefore(t + MARGIN_TICKS);
       this.pathCheck = t;
     }
+    if (!this.clock.anchored) this.lostUnwelcomed = true;
   }
 
   /** A message published when the server was at `present` arrived: the first since a restored
@@ -343,6 +357,10 @@ export class Session {
   private welcomed(w: Welcome, nowMs: number): void {
     this.stats.welcomes++;
     this.clock.anchor(w.tick, w.tick_hz, nowMs);
+    if (this.lostUnwelcomed) {
+      this.lostUnwelcomed = false;
+      this.restoredAt(nowMs);
+    }
     if (!this.remote || this.remote.config.tickHz !== w.tick_hz) {
       this.remote = new RemoteWorld({ ...remoteConfig(w.tick_hz), delayS: this.config.interpolationDelayS });
     }

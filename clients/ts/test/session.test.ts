@@ -165,6 +165,23 @@ test("after a restored link, the ticks before the server's present at its first 
   assert.equal(s.events.matched, 1, "from then on ticks are compared");
 });
 
+test("a link restored before the welcome leaves the ticks before the welcome's present uncompared", () => {
+  // A player back through the gateway: the server published on its keys while it was away, so
+  // the gateway tells of a lost link before the welcome has come (on another key).
+  const s = new Session(sessionConfig(ME));
+  s.linkRestored(0);
+  s.receive({ type: "confirmed", tick: 80, revision: 0, events: [event(80)] }, 0);
+  s.receive({ type: "confirmed", tick: 84, revision: 0, events: [event(84)] }, 0);
+  assert.deepEqual([s.events.mismatched, s.events.unverified], [0, 2]);
+  s.receive(welcome(100, 1), 0);
+  s.receive({ type: "events", tick: 105, revision: 0, events: [event(105)] }, 0);
+  s.receive({ type: "events", tick: 140, revision: 0, events: [event(140)] }, 0);
+  s.receive({ type: "confirmed", tick: 105, revision: 0, events: [event(105)] }, 0);
+  assert.deepEqual([s.events.mismatched, s.events.unverified], [0, 3], "before the welcome's present");
+  s.receive({ type: "confirmed", tick: 140, revision: 0, events: [event(140)] }, 0);
+  assert.deepEqual([s.events.matched, s.events.mismatched], [1, 0], "published after the welcome: compared");
+});
+
 test("a confirmation makes every earlier tick final, so a long match holds nothing", () => {
   const s = playing();
   s.receive({ type: "events", tick: 103, revision: 0, events: [event(103)] }, 300);
