@@ -241,7 +241,7 @@ pub(super) struct Marks {
     /// Per entry, together: a receiver reads and writes all three of the entries near it, one
     /// cache line each rather than three.
     at: Vec<Mark>,
-    wants: Vec<(u64, EntityId, u32, Want)>,
+    wants: Vec<Need>,
     spare: Vec<HeldBody>,
 }
 
@@ -267,7 +267,7 @@ impl Marks {
     }
 }
 
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 enum Want {
     /// New to the receiver (or everything, on a full frame).
     Enter,
@@ -276,6 +276,39 @@ enum Want {
     /// Held (at this index), its info changed: sent whole again. Held back, it stays held with
     /// what the receiver has, so it is still said to leave if it leaves.
     Again(u32),
+}
+
+/// A body a receiver needs, packed in one integer that orders as the needs are served: by
+/// priority ([`rank`], less first), then by entry (entries are in entity order, so a tie goes to
+/// the lower id); the [`Want`] in the low bits. Sixteen bytes, compared as one number: choosing
+/// and sorting the needs that fit the budget is a large share of a frame's work.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+struct Need(u128);
+
+impl Need {
+    const INDEX: u32 = (1 << 30) - 1;
+
+    fn new(d2: f64, i: u32, want: Want) -> Need {
+        let w = match want {
+            Want::Enter => 0,
+            Want::Move(k) => 1 << 30 | k,
+            Want::Again(k) => 2 << 30 | k,
+        };
+        debug_assert!(matches!(want, Want::Move(k) | Want::Again(k) if k <= Need::INDEX) || w == 0);
+        Need(u128::from(rank(d2)) << 64 | u128::from(i) << 32 | u128::from(w))
+    }
+
+    /// Its entry and what it wants.
+    fn get(self) -> (u32, Want) {
+        let w = self.0 as u32;
+        let k = w & Need::INDEX;
+        let want = match w >> 30 {
+            0 => Want::Enter,
+            1 => Want::Move(k),
+            _ => Want::Again(k),
+        };
+        ((self.0 >> 32) as u32, want)
+    }
 }
 
 /// The frame that brings `held` to the bodies of `cands` (`(squared priority distance, entry)`,
@@ -329,15 +362,15 @@ pub(super) fn build(
         let (e, d2) = (&entries[i as usize], m.dist2);
         let b = HeldBody { at: i, ..*b };
         if full {
-            wants.push((rank(d2), e.motion.0, i, Want::Enter));
+            wants.push(Need::new(d2, i, Want::Enter));
         } else if b.info != e.info {
             // Its class or game state changed: its info again, from the budget first.
-            wants.push((rank(0.0), e.motion.0, i, Want::Again(keep.len() as u32)));
+            wants.push(Need::new(0.0, i, Want::Again(keep.len() as u32)));
             keep.push(b);
         } else if changed(&b.motion, &e.motion, f64::from(cap.tick.0.wrapping_sub(b.sent.0)) * cap.config.dt) {
             // The distance over one plus the frames it waited, squared as the distance is.
             let wait = 1.0 + f64::from(b.waited);
-            wants.push((rank(d2 / (wait * wait)), e.motion.0, i, Want::Move(keep.len() as u32)));
+            wants.push(Need::new(d2 / (wait * wait), i, Want::Move(keep.len() as u32)));
             keep.push(b);
         } else {
             keep.push(b);
@@ -346,7 +379,7 @@ pub(super) fn build(
     // What is near and it does not hold: new to it.
     for &(d2, i) in cands {
         if marks.at[i as usize].held != stamp {
-            wants.push((rank(d2), entries[i as usize].motion.0, i, Want::Enter));
+            wants.push(Need::new(d2, i, Want::Enter));
         }
     }
     if full {
@@ -354,16 +387,15 @@ pub(super) fn build(
     }
     // Only as many as the budget could hold at the cheapest need ordering: pick them, sort them;
     // the rest wait (in any order: each just waits).
-    let cmp = |a: &(u64, EntityId, u32, Want), b: &(u64, EntityId, u32, Want)| (a.0, a.1).cmp(&(b.0, b.1));
     let fit = budget.map_or(wants.len(), |b| ((b - spend as f64).max(0.0) / MOTION_BYTES as f64) as usize + 1);
     frame.moved.reserve(fit.min(wants.len()));
     if fit < wants.len() {
-        wants.select_nth_unstable_by(fit, cmp);
-        wants[..fit].sort_unstable_by(cmp);
+        wants.select_nth_unstable(fit);
+        wants[..fit].sort_unstable();
     } else {
-        wants.sort_unstable_by(cmp);
+        wants.sort_unstable();
     }
-    for &(_, _, i, want) in &wants {
+    for (i, want) in wants.iter().map(|n| n.get()) {
         let e = &entries[i as usize];
         let cost = match want {
             Want::Enter | Want::Again(_) => e.info_bytes as usize + MOTION_BYTES,
@@ -450,4 +482,28 @@ pub(super) fn publish(
         }
     };
     Some(Publish { key, bytes, encoding, client, deferred, frame: keep.then_some(frame) })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Needs order by priority, then by entry, and give back the entry and want they were made of.
+    #[test]
+    fn needs_order_by_priority_then_entry() {
+        let made = [
+            (2.5, 1, Want::Enter),
+            (0.0, 9, Want::Again(Need::INDEX)),
+            (2.5, 0, Want::Move(0)),
+            (1e-300, 3, Want::Move(7)),
+            (f64::MAX, u32::MAX - 1, Want::Again(0)),
+        ];
+        let mut needs: Vec<Need> = made.iter().map(|&(d2, i, w)| Need::new(d2, i, w)).collect();
+        for (n, &(_, i, w)) in needs.iter().zip(&made) {
+            assert_eq!(n.get(), (i, w));
+        }
+        needs.sort_unstable();
+        let order: Vec<u32> = needs.iter().map(|n| n.get().0).collect();
+        assert_eq!(order, [9, 3, 0, 1, u32::MAX - 1]);
+    }
 }
