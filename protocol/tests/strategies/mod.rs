@@ -285,7 +285,7 @@ pub fn state_frame() -> impl Strategy<Value = ServerMessage> {
         tick(),
         any::<u32>(),
         any::<bool>(),
-        vec((entity(), "[a-z]{1,10}", option::of(client()), 0..7u8, small3()), 0..4),
+        vec((entity(), "[a-z]{1,10}|[a-z]{32,40}", option::of(client()), 0..7u8, small3()), 0..4),
         vec((entity(), small3(), small3(), any::<bool>()), 0..6),
         vec(entity(), 0..3),
         option::of(small3()),
