@@ -1553,6 +1553,8 @@ impl Run<'_> {
         let mut r = std::mem::take(&mut self.r);
         let (latency, depth, server_ticks, clients) = (&self.latency, &self.depth, &self.server_ticks, &self.clients);
         let secs = cfg.duration.as_secs_f64().max(1e-9);
+        r.keepalives = self.sessions().map(|s| s.stats().keepalives).sum();
+        r.inputs_sent += r.keepalives;
         r.inputs_lost_in_network = r.inputs_sent.saturating_sub(r.inputs_delivered);
         r.messages_lost_in_network = self.up.iter().map(|l| l.lost).sum();
         r.inputs_unanswered = clients.iter().map(|c| c.ledger.unanswered()).sum();

@@ -20,8 +20,11 @@ pub struct Report {
     /// Presence declarations repeated because a client's welcome had not come within
     /// `impact_client::transport::WELCOME_WAIT` (doubling).
     pub presence_repeats: u64,
-    /// Inputs the clients produced.
+    /// Inputs the clients produced (their sessions' keepalives included).
     pub inputs_sent: u64,
+    /// Of them, inputs of no actions the sessions sent while the game's awaited answers
+    /// (`impact_client::session::KEEPALIVE_AFTER`).
+    pub keepalives: u64,
     /// Inputs none of whose copies reached the server (the simulated uplink loss took every
     /// message that carried them).
     pub inputs_lost_in_network: u64,
@@ -408,8 +411,13 @@ impl std::fmt::Display for Report {
         )?;
         writeln!(
             f,
-            "  inputs   sent {} ({} copies again) | lost in the network {} ({} messages) | delivered {} ({} twice) | acked {} ({} acks lost, told by the next) | unanswered {} | answered unexpectedly {}",
-            self.inputs_sent, self.input_copies_sent, self.inputs_lost_in_network, self.messages_lost_in_network, self.inputs_delivered, self.inputs_duplicated, self.acks, self.acks_recovered, self.inputs_unanswered, self.answers_unexpected
+            "  inputs   sent {}{} ({} copies again) | lost in the network {} ({} messages) | delivered {} ({} twice) | acked {} ({} acks lost, told by the next) | unanswered {} | answered unexpectedly {}",
+            self.inputs_sent,
+            match self.keepalives {
+                0 => String::new(),
+                n => format!(", {n} of them keepalives"),
+            },
+            self.input_copies_sent, self.inputs_lost_in_network, self.messages_lost_in_network, self.inputs_delivered, self.inputs_duplicated, self.acks, self.acks_recovered, self.inputs_unanswered, self.answers_unexpected
         )?;
         self.fmt_recovery(f)?;
         if self.worlds_followed > 0 {

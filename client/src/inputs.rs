@@ -25,6 +25,9 @@ pub struct Sent {
     pub view: Option<Tick>,
     /// When a message last carried it (its first sending, or a copy in a later message).
     pub carried: Instant,
+    /// The session's own input of no actions, sent to learn what became of the game's
+    /// (`impact_client::session::KEEPALIVE_AFTER`): its answer is not the game's.
+    pub keepalive: bool,
 }
 
 /// The first input's number, unwrapped: seq 1, with a wrap's room below it for [`Outbox::key`]
@@ -132,6 +135,11 @@ impl Outbox {
         self.pending.contains_key(&self.key(seq))
     }
 
+    /// Whether any input awaiting an answer is the game's (not a keepalive).
+    pub fn awaits_the_games(&self) -> bool {
+        self.pending.values().any(|s| !s.keepalive)
+    }
+
     /// Inputs awaiting an answer.
     pub fn pending(&self) -> usize {
         self.pending.len()
@@ -153,7 +161,7 @@ mod tests {
     fn inputs_are_numbered_matched_once_and_bounded() {
         let now = Instant::now();
         let mut o = Outbox::new(3);
-        let sent = |t: u32| Sent { at: now, tick: Tick(t), view: None, carried: now };
+        let sent = |t: u32| Sent { at: now, tick: Tick(t), view: None, carried: now, keepalive: false };
         let seqs: Vec<u32> = (0..5).map(|_| o.next_seq()).collect();
         assert_eq!(seqs, [1, 2, 3, 4, 5]);
         for &s in &seqs {
@@ -173,7 +181,7 @@ mod tests {
     fn numbers_go_on_across_the_wrap() {
         let now = Instant::now();
         let mut o = Outbox::new(4);
-        let sent = Sent { at: now, tick: Tick(1), view: None, carried: now };
+        let sent = Sent { at: now, tick: Tick(1), view: None, carried: now, keepalive: false };
         o.resume_from(u32::MAX - 2);
         let seqs: Vec<u32> = (0..6).map(|_| o.next_seq()).collect();
         assert_eq!(seqs, [u32::MAX - 2, u32::MAX - 1, u32::MAX, 1, 2, 3]);

@@ -14,7 +14,9 @@
 //! 3. **Playing**: inputs are stamped ahead by the lead the acks recommend, numbered, and sent
 //!    with up to [`SessionConfig::redundancy`] unanswered inputs before them in one
 //!    [`ClientMessage::Inputs`] (one lost message loses no input; the server applies each seq
-//!    once and skips repeats without an answer).
+//!    once and skips repeats without an answer). Inputs of the game's still unanswered when it
+//!    has made none for [`KEEPALIVE_AFTER`] bring an input of no actions, whose ack tells which
+//!    of them never reached the server.
 //!
 //! A second welcome (the session reconnected within the server's grace period) resumes: the
 //! inputs the server says it accepted are dropped from the resend set, the seqs go on from the
@@ -51,6 +53,15 @@ pub const SYNC_TIMEOUT: Duration = Duration::from_secs(2);
 
 /// While the state stream waits for a full frame (after a gap), one is asked for this often.
 pub const FULL_FRAME_EVERY: Duration = Duration::from_millis(250);
+
+/// The game's inputs awaiting an answer while it makes none for this long: the session sends an
+/// input of no actions (a keepalive, [`SessionStats::keepalives`]), again each time this passes,
+/// until none of the game's awaits one. Nothing else tells what became of an input sent just
+/// before the game fell idle: an input is known lost only by an ack of a later one (PROTOCOL.md,
+/// "Messages lost or late"), and one sent into a server that stood still, or a link that dropped
+/// it, would wait forever. A second is several round trips and leads: an input's answer
+/// that has not come by then is late or lost; a game that sends every tick never needs one.
+pub const KEEPALIVE_AFTER: Duration = Duration::from_secs(1);
 
 /// A probe unanswered this long is taken as lost, and the next one is sent.
 pub const PROBE_TIMEOUT: Duration = Duration::from_millis(250);
@@ -306,6 +317,9 @@ pub struct SessionStats {
     pub unmatched_answers: u64,
     /// Inputs sent again as redundant copies.
     pub copies_sent: u64,
+    /// Inputs of no actions the session sent itself ([`KEEPALIVE_AFTER`]; counted in
+    /// `inputs_sent` too, their answers are not the game's).
+    pub keepalives: u64,
     /// Provisional events received.
     pub events: u64,
     /// Correction batches applied.
@@ -444,6 +458,8 @@ pub struct Session {
     /// After a second welcome: which inputs it left unaccepted, answered lost once an input made
     /// after it is acked.
     lost_check: Option<LostCheck>,
+    /// When the last input was made (the game's or a keepalive).
+    last_input: Option<Instant>,
     /// The freshest evidence of the server's tick: a tick a message named and when it came,
     /// the one that run on at the full rate puts the server furthest (a message that came late
     /// names an old tick and does not replace it), for at most [`NAMED_FOR`].
@@ -487,6 +503,7 @@ impl Session {
             epoch: Epoch::default(),
             numbers: [KeyNumbers::default(); OwnKey::COUNT],
             lost_check: None,
+            last_input: None,
             path_check: None,
             lost_unwelcomed: false,
             newest_named: None,
@@ -744,6 +761,9 @@ impl Session {
                 // Applied, most likely at its tick: the prediction keeps it where it is.
                 Outcome::AckLost => {}
             }
+        }
+        if sent.keepalive {
+            return; // the session's own
         }
         if self.answers.len() >= MAX_ANSWERS {
             self.answers.pop_front();
@@ -1168,6 +1188,11 @@ impl Session {
     /// remote world is drawn at now (`aim_tick`), so the server rewinds the shot to what the
     /// player saw. Returns its seq.
     pub fn input(&mut self, actions: Vec<Action>, now: Instant) -> Result<u32, InputError> {
+        self.make_input(actions, false, now)
+    }
+
+    /// [`Session::input`], or a keepalive ([`KEEPALIVE_AFTER`]).
+    fn make_input(&mut self, actions: Vec<Action>, keepalive: bool, now: Instant) -> Result<u32, InputError> {
         if self.status == Status::Closed {
             return Err(InputError::Closed);
         }
@@ -1183,7 +1208,9 @@ impl Session {
         let fires = actions.iter().any(|a| matches!(a, Action::FireRay { .. }));
         let aim_tick = self.render_tick(now).filter(|_| fires).map(|r| Tick(r.floor().max(0.0) as u32));
         let input = ClientInput { client: self.cfg.client, seq, tick, view_tick, aim_tick, actions };
-        self.outbox.sent(seq, Sent { at: now, tick, view: view_tick, carried: now });
+        self.outbox.sent(seq, Sent { at: now, tick, view: view_tick, carried: now, keepalive });
+        self.last_input = Some(now);
+        self.stats.keepalives += u64::from(keepalive);
         if let Some(p) = self.predictor.as_mut() {
             p.input(tick, seq, &input.actions);
         }
@@ -1251,6 +1278,10 @@ impl Session {
             self.stats.full_frames_asked += 1;
             return Some(ClientMessage::FullFrame(FullFrameRequest { client: self.cfg.client }));
         }
+        let idle = self.last_input.is_some_and(|t| now.saturating_duration_since(t) >= KEEPALIVE_AFTER);
+        if idle && self.status == Status::Playing && self.outbox.awaits_the_games() {
+            let _ = self.make_input(Vec::new(), true, now);
+        }
         self.outgoing.pop_front()
     }
 }
@@ -1289,6 +1320,23 @@ mod tests {
             lead_ticks: lead,
             accepted_before: 0,
         })
+    }
+
+    /// A session welcomed, synced by timeout (no probe answered) and playing, that sent three
+    /// inputs (seqs 1, 2, 3) at the returned instant, none answered.
+    fn played_three(cfg: SessionConfig) -> (Session, Instant) {
+        let t0 = Instant::now();
+        let mut s = Session::new(cfg);
+        s.receive(welcome(0), t0);
+        let mut t = t0 + SYNC_TIMEOUT;
+        while s.status() == Status::Syncing {
+            let _ = s.poll_transmit(t);
+            t += Duration::from_millis(50);
+        }
+        let seqs: Vec<u32> = (0..3).map(|_| s.input(walk(), t).unwrap()).collect();
+        assert_eq!(seqs, [1, 2, 3]);
+        while s.poll_transmit(t).is_some() {}
+        (s, t)
     }
 
     /// The ticks of late inputs are kept only as long as they can explain a misprediction, also
@@ -1434,16 +1482,8 @@ mod tests {
     /// next_seq) is not lost: that ack's `accepted_before` tells it accepted.
     #[test]
     fn inputs_lost_with_the_link_are_answered_as_lost() {
-        let t0 = Instant::now();
-        let mut s = Session::new(SessionConfig { redundancy: 0, ..SessionConfig::new(ClientId(7)) });
-        s.receive(welcome(0), t0);
-        let mut t = t0 + SYNC_TIMEOUT;
-        while s.status() == Status::Syncing {
-            let _ = s.poll_transmit(t);
-            t += Duration::from_millis(50);
-        }
-        let seqs: Vec<u32> = (0..3).map(|_| s.input(walk(), t).unwrap()).collect();
-        while s.poll_transmit(t).is_some() {}
+        let (mut s, mut t) = played_three(SessionConfig { redundancy: 0, ..SessionConfig::new(ClientId(7)) });
+        let seqs: Vec<u32> = (1..=3).collect();
         // The link drops; back, the server welcomes again: it accepted the first input only.
         t += Duration::from_secs(1);
         s.receive(welcome(seqs[0] + 1), t);
@@ -1471,7 +1511,48 @@ mod tests {
         let answers: Vec<(u32, Outcome)> = s.take_answers().map(|a| (a.seq, a.outcome)).collect();
         assert_eq!(answers[..2], [(seqs[1], Outcome::Rejected(RejectReason::Stale)), (after, answers[1].1)]);
         assert_eq!(answers[2..], [(seqs[0], Outcome::AckLost), (seqs[2], Outcome::Lost)]);
-        assert_eq!((s.stats().inputs_lost, s.pending_inputs()), (1, 0));
+        // Awaited still: the keepalive the 3 s of silence brought (its answer is the session's).
+        assert_eq!((s.stats().inputs_lost, s.pending_inputs(), s.stats().keepalives), (1, 1, 1));
+    }
+
+    /// A game that falls idle with inputs unanswered (sent into a server that stood still, or
+    /// lost on a link): a second later the session sends an input of no actions, again each
+    /// second while none is answered, and the ack of one tells what became of those before it.
+    /// Its own answers are not the game's, and once none of the game's awaits one it sends none.
+    #[test]
+    fn an_idle_game_learns_the_fate_of_its_last_inputs() {
+        let (mut s, mut t) = played_three(SessionConfig::new(ClientId(7)));
+        let seqs: Vec<u32> = (1..=3).collect();
+        let keepalive = |s: &mut Session, at: Instant| -> Option<u32> {
+            let mut made = None;
+            while let Some(m) = s.poll_transmit(at) {
+                let newest = match m {
+                    ClientMessage::Input(i) => i,
+                    ClientMessage::Inputs(b) => b.inputs.last().cloned().expect("an input"),
+                    other => panic!("{other:?}"),
+                };
+                assert!(newest.actions.is_empty(), "a keepalive has no actions: {newest:?}");
+                made = Some(newest.seq);
+            }
+            made
+        };
+        assert_eq!(keepalive(&mut s, t + Duration::from_millis(900)), None, "not yet overdue");
+        t += KEEPALIVE_AFTER;
+        let first = keepalive(&mut s, t).expect("a keepalive after a second of silence");
+        assert_eq!(keepalive(&mut s, t + Duration::from_millis(500)), None, "one a second");
+        t += KEEPALIVE_AFTER;
+        let second = keepalive(&mut s, t).expect("another while nothing is answered");
+        assert_eq!(s.stats().keepalives, 2);
+        // The server heard the second input and the second keepalive only.
+        let ServerMessage::Ack(mut a) = ack(second, 300, 4) else { unreachable!() };
+        a.accepted_before = 1 << (second - seqs[1] - 1);
+        s.receive(ServerMessage::Ack(a), t);
+        let mut answers: Vec<(u32, Outcome)> = s.take_answers().map(|a| (a.seq, a.outcome)).collect();
+        answers.sort_by_key(|a| a.0);
+        assert_eq!(answers, [(seqs[0], Outcome::Lost), (seqs[1], Outcome::AckLost), (seqs[2], Outcome::Lost)]);
+        assert_eq!((s.stats().inputs_lost, s.awaits(first)), (3, false), "the first keepalive is lost too");
+        assert_eq!(keepalive(&mut s, t + Duration::from_secs(5)), None, "nothing of the game's awaits");
+        assert_eq!(s.pending_inputs(), 0);
     }
 
     /// After a welcome again, the ack of an input made after it settles every input made before

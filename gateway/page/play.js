@@ -2227,6 +2227,11 @@ var Outbox = class _Outbox {
     }
     return out;
   }
+  /** Whether any input awaiting an answer is the game's (not a keepalive). */
+  awaitsTheGames() {
+    for (const s of this.pending.values()) if (!s.keepalive) return true;
+    return false;
+  }
   awaits(seq) {
     return this.pending.has(this.key(seq));
   }
@@ -2390,6 +2395,7 @@ var RemoteWorld = class {
 var SYNC_PROBES = 5;
 var SYNC_TIMEOUT_MS = 2e3;
 var PROBE_TIMEOUT_MS = 250;
+var KEEPALIVE_AFTER_MS = 1e3;
 var FULL_FRAME_EVERY_MS = 250;
 var MAX_OUTGOING = 256;
 var MAX_ANSWERS = 1024;
@@ -2416,6 +2422,8 @@ var Session = class {
   stats = {
     welcomes: 0,
     inputsSent: 0,
+    /** Inputs of no actions the session sent itself (counted in inputsSent too). */
+    keepalives: 0,
     inputsAcked: 0,
     acksRecovered: 0,
     inputsLost: 0,
@@ -2448,6 +2456,8 @@ var Session = class {
   /** After a second welcome: the inputs it left unaccepted, answered lost once an input made
    * after it is acked. */
   lostCheck = null;
+  /** When the last input was made (the game's or a keepalive). */
+  lastInputMs = null;
   /** After a restored link: the server's present then, as estimated; see `publishedAt`. */
   pathCheck = null;
   /** The link was restored before the welcome, with no estimate of the server's present to say
@@ -2712,6 +2722,7 @@ var Session = class {
     }
   }
   answered(seq, sent, outcome, nowMs) {
+    if (sent.keepalive) return;
     if (this.answers.length >= MAX_ANSWERS) this.answers.shift();
     this.answers.push({ seq, tick: sent.tick, sentMs: sent.atMs, roundTripMs: nowMs - sent.atMs, outcome });
   }
@@ -2743,6 +2754,9 @@ var Session = class {
   /** Numbers and stamps `actions` as the next input and queues it with the unanswered inputs
    * before it. Returns its seq. */
   input(actions, nowMs) {
+    return this.makeInput(actions, false, nowMs);
+  }
+  makeInput(actions, keepalive, nowMs) {
     if (this.status === "closed") throw new InputError("the world closed");
     if (actions.length > MAX_ACTIONS_PER_INPUT) throw new InputError(`${actions.length} actions: at most ${MAX_ACTIONS_PER_INPUT}`);
     const stamped = this.clock.stamp(this.config.ahead, nowMs);
@@ -2752,7 +2766,9 @@ var Session = class {
     if (this.config.ahead) input.view_tick = stamped.view;
     const render = this.renderTick(nowMs);
     if (render !== null && actions.some((a) => a.type === "fire_ray")) input.aim_tick = Math.max(0, Math.floor(render));
-    this.outbox.sent(seq, { atMs: nowMs, tick: stamped.tick, view: this.config.ahead ? stamped.view : null, carriedMs: nowMs });
+    this.outbox.sent(seq, { atMs: nowMs, tick: stamped.tick, view: this.config.ahead ? stamped.view : null, carriedMs: nowMs, keepalive });
+    this.lastInputMs = nowMs;
+    if (keepalive) this.stats.keepalives++;
     for (const a of actions) {
       if (a.type === "set_velocity" && a.entity === this.avatar) {
         this.velocities = this.velocities.filter((v) => v.tick < stamped.tick);
@@ -2819,6 +2835,8 @@ var Session = class {
       this.stats.fullFramesAsked++;
       return { type: "full_frame", client: this.config.client };
     }
+    const idle = this.lastInputMs !== null && nowMs - this.lastInputMs >= KEEPALIVE_AFTER_MS;
+    if (idle && this.status === "playing" && this.outbox.awaitsTheGames()) this.makeInput([], true, nowMs);
     return this.outgoing.shift() ?? null;
   }
   /** Each input answered since the last call, in order. */

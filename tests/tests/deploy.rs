@@ -561,6 +561,56 @@ fn a_stalled_primary_comes_back_fenced() {
     assert_eq!(epochs, BTreeSet::from([Some(Epoch(1)), Some(Epoch(2))]), "confirmed by {epochs:?}");
 }
 
+/// A primary alone behind a router stands still past its lease (SIGSTOP for 2.5 s, then SIGCONT):
+/// it holds its messages until it knows no other server took the world over, goes on, and
+/// welcomes its clients again on its present (PROTOCOL.md, "The server hangs and comes back"):
+/// their clocks follow it at once, and each can tell which inputs it sent into the silence never
+/// arrived. (The clients' presence, declared anew through the router after the stall, welcomes
+/// them too here; the hold's own welcome makes it not depend on Zenoh doing so.)
+#[test]
+fn a_primary_that_held_past_its_lease_welcomes_its_clients_again() {
+    let router = endpoint();
+    let _router = Proc::router("hold-router", &router, &[]);
+    std::thread::sleep(Duration::from_millis(500));
+    let mut primary = server("hold-primary", &["arena"], &router, &["--quiet"]);
+    assert!(primary.wait_for_output("listening on", Duration::from_secs(20)), "{}", primary.output());
+    let world = WorldId::new("arena").unwrap();
+    let s = through(&router);
+    let ids = [ClientId(450), ClientId(451)];
+    let taps: Vec<Tap> = ids.iter().map(|c| Tap::new(&s, &keys::CLIENT_ACK.key(&world, Some(*c)))).collect();
+    let _tokens: Vec<_> = ids.iter().map(|c| join(&s, &world, *c)).collect();
+    let welcomed = |tap: &Tap| {
+        tap.wait_for(Duration::from_secs(10), |_, m, at| match m {
+            ServerMessage::Welcome(w) => Some((w.tick, at)),
+            _ => None,
+        })
+    };
+    let first: Vec<_> = taps.iter().map(|t| welcomed(t).expect("a first welcome")).collect();
+    std::thread::sleep(Duration::from_millis(500));
+    primary.signal("STOP");
+    std::thread::sleep(Duration::from_millis(2500));
+    primary.signal("CONT");
+    let resumed = Instant::now();
+    for (k, tap) in taps.iter().enumerate() {
+        let Some((tick, at)) = welcomed(tap) else {
+            panic!("client {} was not welcomed again:\n{}", ids[k].0, primary.output());
+        };
+        let after = at.duration_since(resumed);
+        eprintln!(
+            "hold: client {} welcomed again {:.2} s after the resume, at tick {}",
+            ids[k].0,
+            after.as_secs_f64(),
+            tick.0
+        );
+        assert!(after >= Duration::from_millis(1500), "welcomed during the hold ({after:?})");
+        assert!(tick > first[k].0, "the second welcome names tick {} after {}", tick.0, first[k].0 .0);
+    }
+    let status = primary.stop();
+    let out = primary.output();
+    assert!(out.contains("holding its messages") && out.contains("publishing again"), "no hold:\n{out}");
+    assert!(status.is_some_and(|x| x.success()), "the primary did not stop cleanly:\n{out}");
+}
+
 /// The only router restarts under a primary and a standby that reach each other through it
 /// alone (Zenoh clients of the router, as servers in separate network segments are): the standby
 /// sees the primary's token go with the router, and must not take over a world whose primary is

@@ -35,6 +35,8 @@ export interface Sent {
   view: number | null;
   /** When a message last carried it (ms). */
   carriedMs: number;
+  /** The session's own input of no actions (KEEPALIVE_AFTER_MS): its answer is not the game's. */
+  keepalive?: boolean;
 }
 
 const FIRST = U32 + 1;
@@ -106,6 +108,12 @@ export class Outbox {
       }
     }
     return out;
+  }
+
+  /** Whether any input awaiting an answer is the game's (not a keepalive). */
+  awaitsTheGames(): boolean {
+    for (const s of this.pending.values()) if (!s.keepalive) return true;
+    return false;
   }
 
   awaits(seq: number): boolean {

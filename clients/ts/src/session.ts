@@ -32,6 +32,12 @@ import { RemoteWorld, remoteConfig, type DrawnBody } from "./remote.js";
 export const SYNC_PROBES = 5;
 export const SYNC_TIMEOUT_MS = 2000;
 export const PROBE_TIMEOUT_MS = 250;
+/** The game's inputs awaiting an answer while it makes none for this long: the session sends an
+ * input of no actions (a keepalive, `stats.keepalives`), again each time this passes, until none
+ * of the game's awaits one. An input is known lost only by the ack of a later one, so one sent
+ * just before the game fell idle, into a server that stood still or a link that dropped it,
+ * would otherwise wait forever. */
+export const KEEPALIVE_AFTER_MS = 1000;
 export const FULL_FRAME_EVERY_MS = 250;
 export const MAX_OUTGOING = 256;
 export const MAX_ANSWERS = 1024;
@@ -90,6 +96,8 @@ export class Session {
   readonly stats = {
     welcomes: 0,
     inputsSent: 0,
+    /** Inputs of no actions the session sent itself (counted in inputsSent too). */
+    keepalives: 0,
     inputsAcked: 0,
     acksRecovered: 0,
     inputsLost: 0,
@@ -123,6 +131,8 @@ export class Session {
   /** After a second welcome: the inputs it left unaccepted, answered lost once an input made
    * after it is acked. */
   private lostCheck: { welcomedMs: number; nextSeq: number } | null = null;
+  /** When the last input was made (the game's or a keepalive). */
+  private lastInputMs: number | null = null;
   /** After a restored link: the server's present then, as estimated; see `publishedAt`. */
   private pathCheck: number | null = null;
   /** The link was restored before the welcome, with no estimate of the server's present to say
@@ -417,6 +427,7 @@ export class Session {
   }
 
   private answered(seq: number, sent: Sent, outcome: Outcome, nowMs: number): void {
+    if (sent.keepalive) return; // the session's own
     if (this.answers.length >= MAX_ANSWERS) this.answers.shift();
     this.answers.push({ seq, tick: sent.tick, sentMs: sent.atMs, roundTripMs: nowMs - sent.atMs, outcome });
   }
@@ -452,6 +463,10 @@ export class Session {
   /** Numbers and stamps `actions` as the next input and queues it with the unanswered inputs
    * before it. Returns its seq. */
   input(actions: Action[], nowMs: number): number {
+    return this.makeInput(actions, false, nowMs);
+  }
+
+  private makeInput(actions: Action[], keepalive: boolean, nowMs: number): number {
     if (this.status === "closed") throw new InputError("the world closed");
     if (actions.length > MAX_ACTIONS_PER_INPUT) throw new InputError(`${actions.length} actions: at most ${MAX_ACTIONS_PER_INPUT}`);
     const stamped = this.clock.stamp(this.config.ahead, nowMs);
@@ -461,7 +476,9 @@ export class Session {
     if (this.config.ahead) input.view_tick = stamped.view;
     const render = this.renderTick(nowMs);
     if (render !== null && actions.some((a) => a.type === "fire_ray")) input.aim_tick = Math.max(0, Math.floor(render));
-    this.outbox.sent(seq, { atMs: nowMs, tick: stamped.tick, view: this.config.ahead ? stamped.view : null, carriedMs: nowMs });
+    this.outbox.sent(seq, { atMs: nowMs, tick: stamped.tick, view: this.config.ahead ? stamped.view : null, carriedMs: nowMs, keepalive });
+    this.lastInputMs = nowMs;
+    if (keepalive) this.stats.keepalives++;
     for (const a of actions) {
       if (a.type === "set_velocity" && a.entity === this.avatar) {
         this.velocities = this.velocities.filter((v) => v.tick < stamped.tick);
@@ -531,6 +548,8 @@ export class Session {
       this.stats.fullFramesAsked++;
       return { type: "full_frame", client: this.config.client };
     }
+    const idle = this.lastInputMs !== null && nowMs - this.lastInputMs >= KEEPALIVE_AFTER_MS;
+    if (idle && this.status === "playing" && this.outbox.awaitsTheGames()) this.makeInput([], true, nowMs);
     return this.outgoing.shift() ?? null;
   }
 

@@ -98,11 +98,41 @@ test("an input the server never accepted is known lost: by a later ack, or after
   const d = s.input([], 700);
   assert.equal(d, c + 1, "numbers go on");
   while (s.pollTransmit(700)) {}
-  s.pollTransmit(3700);
-  assert.equal(s.pendingInputs, 2, "no length of silence tells an input lost (a stalled path holds answers)");
+  assert.equal(s.pollTransmit(3700)?.type, "input", "3 s of silence bring a keepalive");
+  assert.equal(s.pendingInputs, 3, "no length of silence tells an input lost (a stalled path holds answers)");
   s.receive(ack(d), 3800);
   assert.deepEqual(s.takeAnswers().map((x) => [x.seq, x.outcome.kind]), [[d, "accepted"], [a, "lost"]]);
   assert.equal(s.stats.inputsLost, 1);
+});
+
+test("a game idle with inputs unanswered sends a keepalive each second, whose ack tells them lost", () => {
+  const s = playing();
+  const seqs = [s.input(walk(1), 260), s.input(walk(2), 260), s.input(walk(3), 260)];
+  while (s.pollTransmit(260)) {}
+  const keepalive = (now: number): number | null => {
+    let made: number | null = null;
+    for (let m = s.pollTransmit(now); m; m = s.pollTransmit(now)) {
+      const newest = m.type === "input" ? m : m.type === "inputs" ? m.inputs[m.inputs.length - 1] : null;
+      assert.ok(newest, `an input, not ${m.type}`);
+      assert.deepEqual(newest.actions, [], "a keepalive has no actions");
+      made = newest.seq;
+    }
+    return made;
+  };
+  assert.equal(keepalive(1160), null, "not yet overdue");
+  const first = keepalive(1260);
+  assert.ok(first !== null, "a keepalive after a second of silence");
+  assert.equal(keepalive(1760), null, "one a second");
+  const second = keepalive(2260);
+  assert.ok(second !== null, "another while nothing is answered");
+  assert.equal(s.stats.keepalives, 2);
+  // The server heard the second input and the second keepalive only.
+  s.receive(ack(second, 1n << BigInt(second - seqs[1]! - 1)), 2300);
+  const answers = s.takeAnswers().map((x) => [x.seq, x.outcome.kind]).sort((x, y) => Number(x[0]) - Number(y[0]));
+  assert.deepEqual(answers, [[seqs[0], "lost"], [seqs[1], "ack_lost"], [seqs[2], "lost"]], "the keepalives' answers are not the game's");
+  assert.equal(s.stats.inputsLost, 3, "the first keepalive is lost too");
+  assert.equal(keepalive(9000), null, "nothing of the game's awaits");
+  assert.equal(s.pendingInputs, 0);
 });
 
 test("inputs below a second welcome's next_seq are answered by the next ack, not forgotten", () => {

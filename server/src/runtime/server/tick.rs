@@ -232,7 +232,10 @@ impl TickLoop {
             let pass = (Instant::now(), clock.read());
             last_pass = match stood_still(last_pass, pass) {
                 Some(stalled) if !self.hold_after_stall(zs, stop, stalled) => continue, // fenced, or stopping
-                Some(_) => (Instant::now(), clock.read()),
+                Some(_) => {
+                    self.welcome_again();
+                    (Instant::now(), clock.read())
+                }
                 None => pass,
             };
             if self.primary.is_some() && last_announce.is_none_or(|t| t.elapsed() >= ANNOUNCE_EVERY) {
@@ -369,6 +372,17 @@ impl TickLoop {
             );
         }
         owned
+    }
+
+    /// After a hold that kept the world: every present client is welcomed again (PROTOCOL.md,
+    /// "The server hangs and comes back"). Its clock re-anchors on the server's present, which
+    /// the stall and the hold put seconds behind its own (it would stamp every input `future`
+    /// until its clock followed), and the welcome's `next_seq` lets it find the inputs it sent
+    /// into the silence that never arrived, once its next is acked.
+    fn welcome_again(&self) {
+        for (client, s) in self.clients.iter().filter(|(_, s)| s.present && self.primary.is_some()) {
+            self.welcome(*client, s.avatar);
+        }
     }
 
     /// Raises the tick thread's priority as [`ServerOptions::tick_nice`] says; a refusal is
