@@ -135,9 +135,21 @@ impl Outbox {
         self.pending.contains_key(&self.key(seq))
     }
 
-    /// Whether any input awaiting an answer is the game's (not a keepalive).
-    pub fn awaits_the_games(&self) -> bool {
-        self.pending.values().any(|s| !s.keepalive)
+    /// Whether any of the last `reach` seqs numbered is the game's input (not a keepalive)
+    /// awaiting an answer.
+    pub fn awaits_the_games(&self, reach: u32) -> bool {
+        let from = self.next.saturating_sub(u64::from(reach));
+        self.pending.range(from..).any(|(_, s)| !s.keepalive)
+    }
+
+    /// What is remembered of input `seq`, while it awaits an answer.
+    pub fn get(&self, seq: u32) -> Option<&Sent> {
+        self.pending.get(&self.key(seq))
+    }
+
+    /// The game's inputs awaiting an answer (not keepalives).
+    pub fn pending_games(&self) -> usize {
+        self.pending.values().filter(|s| !s.keepalive).count()
     }
 
     /// Inputs awaiting an answer.

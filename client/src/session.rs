@@ -60,8 +60,14 @@ pub const FULL_FRAME_EVERY: Duration = Duration::from_millis(250);
 /// before the game fell idle: an input is known lost only by an ack of a later one (PROTOCOL.md,
 /// "Messages lost or late"), and one sent into a server that stood still, or a link that dropped
 /// it, would wait forever. A second is several round trips and leads: an input's answer
-/// that has not come by then is late or lost; a game that sends every tick never needs one.
+/// that has not come by then is late or lost; a game that sends every tick never needs one. Only
+/// inputs an ack can tell about bring them: within [`KEEPALIVE_REACH`] seqs of the next.
 pub const KEEPALIVE_AFTER: Duration = Duration::from_secs(1);
+
+/// How far back a keepalive's ack tells: its `accepted_before` covers the 64 seqs before it. So
+/// an idle game sends at most 64 keepalives for one input (a server gone for good does not fill
+/// the outbox with them).
+pub const KEEPALIVE_REACH: u32 = 64;
 
 /// A probe unanswered this long is taken as lost, and the next one is sent.
 pub const PROBE_TIMEOUT: Duration = Duration::from_millis(250);
@@ -317,8 +323,9 @@ pub struct SessionStats {
     pub unmatched_answers: u64,
     /// Inputs sent again as redundant copies.
     pub copies_sent: u64,
-    /// Inputs of no actions the session sent itself ([`KEEPALIVE_AFTER`]; counted in
-    /// `inputs_sent` too, their answers are not the game's).
+    /// Inputs of no actions the session sent itself ([`KEEPALIVE_AFTER`]). Each is counted in
+    /// `inputs_sent` too, and its answer where it falls (`inputs_acked`, `inputs_lost`, ...),
+    /// but not given to the game.
     pub keepalives: u64,
     /// Provisional events received.
     pub events: u64,
@@ -784,14 +791,16 @@ impl Session {
         &self.stats
     }
 
-    /// Whether input `seq` awaits an answer.
+    /// Whether the game's input `seq` awaits an answer (a keepalive is the session's own: once
+    /// the inputs it was sent for are answered, its own answer, lost on the way, is owed to no
+    /// one).
     pub fn awaits(&self, seq: u32) -> bool {
-        self.outbox.awaits(seq)
+        self.outbox.get(seq).is_some_and(|s| !s.keepalive)
     }
 
-    /// Inputs awaiting an answer.
+    /// The game's inputs awaiting an answer (the session's keepalives are not counted).
     pub fn pending_inputs(&self) -> usize {
-        self.outbox.pending()
+        self.outbox.pending_games()
     }
 
     /// The transport received something it could not decode (counted, then skipped).
@@ -1279,7 +1288,7 @@ impl Session {
             return Some(ClientMessage::FullFrame(FullFrameRequest { client: self.cfg.client }));
         }
         let idle = self.last_input.is_some_and(|t| now.saturating_duration_since(t) >= KEEPALIVE_AFTER);
-        if idle && self.status == Status::Playing && self.outbox.awaits_the_games() {
+        if idle && self.status == Status::Playing && self.outbox.awaits_the_games(KEEPALIVE_REACH) {
             let _ = self.make_input(Vec::new(), true, now);
         }
         self.outgoing.pop_front()
@@ -1475,6 +1484,29 @@ mod tests {
         assert_eq!(whole.events().matched, 1);
     }
 
+    /// A server gone for good: an idle game's last input brings one keepalive a second while an
+    /// ack could still tell about it (64 seqs), then none; the keepalives await their answers
+    /// apart from the game's.
+    #[test]
+    fn keepalives_stop_where_an_ack_could_no_longer_tell() {
+        let (mut s, mut t) = played_three(SessionConfig::new(ClientId(7)));
+        let mut sent = Vec::new();
+        for _ in 0..100 {
+            t += KEEPALIVE_AFTER;
+            while let Some(m) = s.poll_transmit(t) {
+                match m {
+                    ClientMessage::Input(i) => sent.push(i.seq),
+                    ClientMessage::Inputs(b) => sent.extend(b.inputs.last().map(|i| i.seq)),
+                    other => panic!("{other:?}"),
+                }
+            }
+        }
+        assert_eq!(s.stats().keepalives, 64, "from seq 4 while seq 3 is within 64 of it: {sent:?}");
+        assert_eq!(sent.last(), Some(&67));
+        assert_eq!(s.pending_inputs(), 3, "the game's three await still");
+        assert!(s.awaits(3) && !s.awaits(4), "a keepalive is not the game's");
+    }
+
     /// Welcomed again after a reconnect: an input sent before the welcome that the server never
     /// accepted (at or above next_seq) is answered as lost once an input made after the welcome
     /// is acked, however long that takes: a path that stalls after the welcome holds the answers
@@ -1511,8 +1543,8 @@ mod tests {
         let answers: Vec<(u32, Outcome)> = s.take_answers().map(|a| (a.seq, a.outcome)).collect();
         assert_eq!(answers[..2], [(seqs[1], Outcome::Rejected(RejectReason::Stale)), (after, answers[1].1)]);
         assert_eq!(answers[2..], [(seqs[0], Outcome::AckLost), (seqs[2], Outcome::Lost)]);
-        // Awaited still: the keepalive the 3 s of silence brought (its answer is the session's).
-        assert_eq!((s.stats().inputs_lost, s.pending_inputs(), s.stats().keepalives), (1, 1, 1));
+        // The keepalive the 3 s of silence brought awaits its answer still, but is not the game's.
+        assert_eq!((s.stats().inputs_lost, s.pending_inputs(), s.stats().keepalives), (1, 0, 1));
     }
 
     /// A game that falls idle with inputs unanswered (sent into a server that stood still, or

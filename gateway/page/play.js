@@ -2227,13 +2227,22 @@ var Outbox = class _Outbox {
     }
     return out;
   }
-  /** Whether any input awaiting an answer is the game's (not a keepalive). */
-  awaitsTheGames() {
-    for (const s of this.pending.values()) if (!s.keepalive) return true;
+  /** Whether any of the last `reach` seqs numbered is the game's input (not a keepalive)
+   * awaiting an answer. */
+  awaitsTheGames(reach) {
+    for (const [k, s] of this.pending) if (!s.keepalive && k >= this.next - reach) return true;
     return false;
   }
+  /** Whether the game's input `seq` awaits an answer (a keepalive is the session's own). */
   awaits(seq) {
-    return this.pending.has(this.key(seq));
+    const s = this.pending.get(this.key(seq));
+    return s !== void 0 && !s.keepalive;
+  }
+  /** The game's inputs awaiting an answer (not keepalives). */
+  get games() {
+    let n = 0;
+    for (const s of this.pending.values()) if (!s.keepalive) n++;
+    return n;
   }
   get size() {
     return this.pending.size;
@@ -2396,6 +2405,7 @@ var SYNC_PROBES = 5;
 var SYNC_TIMEOUT_MS = 2e3;
 var PROBE_TIMEOUT_MS = 250;
 var KEEPALIVE_AFTER_MS = 1e3;
+var KEEPALIVE_REACH = 64;
 var FULL_FRAME_EVERY_MS = 250;
 var MAX_OUTGOING = 256;
 var MAX_ANSWERS = 1024;
@@ -2477,9 +2487,9 @@ var Session = class {
   get avatar() {
     return this.welcome?.avatar ?? null;
   }
-  /** Inputs awaiting an answer. */
+  /** The game's inputs awaiting an answer (the session's keepalives are not counted). */
   get pendingInputs() {
-    return this.outbox.size;
+    return this.outbox.games;
   }
   /** A message that did not decode. */
   malformed() {
@@ -2836,7 +2846,7 @@ var Session = class {
       return { type: "full_frame", client: this.config.client };
     }
     const idle = this.lastInputMs !== null && nowMs - this.lastInputMs >= KEEPALIVE_AFTER_MS;
-    if (idle && this.status === "playing" && this.outbox.awaitsTheGames()) this.makeInput([], true, nowMs);
+    if (idle && this.status === "playing" && this.outbox.awaitsTheGames(KEEPALIVE_REACH)) this.makeInput([], true, nowMs);
     return this.outgoing.shift() ?? null;
   }
   /** Each input answered since the last call, in order. */

@@ -110,14 +110,24 @@ export class Outbox {
     return out;
   }
 
-  /** Whether any input awaiting an answer is the game's (not a keepalive). */
-  awaitsTheGames(): boolean {
-    for (const s of this.pending.values()) if (!s.keepalive) return true;
+  /** Whether any of the last `reach` seqs numbered is the game's input (not a keepalive)
+   * awaiting an answer. */
+  awaitsTheGames(reach: number): boolean {
+    for (const [k, s] of this.pending) if (!s.keepalive && k >= this.next - reach) return true;
     return false;
   }
 
+  /** Whether the game's input `seq` awaits an answer (a keepalive is the session's own). */
   awaits(seq: number): boolean {
-    return this.pending.has(this.key(seq));
+    const s = this.pending.get(this.key(seq));
+    return s !== undefined && !s.keepalive;
+  }
+
+  /** The game's inputs awaiting an answer (not keepalives). */
+  get games(): number {
+    let n = 0;
+    for (const s of this.pending.values()) if (!s.keepalive) n++;
+    return n;
   }
 
   get size(): number {

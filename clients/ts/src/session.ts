@@ -36,8 +36,11 @@ export const PROBE_TIMEOUT_MS = 250;
  * input of no actions (a keepalive, `stats.keepalives`), again each time this passes, until none
  * of the game's awaits one. An input is known lost only by the ack of a later one, so one sent
  * just before the game fell idle, into a server that stood still or a link that dropped it,
- * would otherwise wait forever. */
+ * would otherwise wait forever. Only inputs an ack can tell about bring them: within
+ * KEEPALIVE_REACH seqs of the next (an ack's `accepted_before` covers 64), so an idle game sends
+ * at most 64 for one input. */
 export const KEEPALIVE_AFTER_MS = 1000;
+export const KEEPALIVE_REACH = 64;
 export const FULL_FRAME_EVERY_MS = 250;
 export const MAX_OUTGOING = 256;
 export const MAX_ANSWERS = 1024;
@@ -156,9 +159,9 @@ export class Session {
     return this.welcome?.avatar ?? null;
   }
 
-  /** Inputs awaiting an answer. */
+  /** The game's inputs awaiting an answer (the session's keepalives are not counted). */
   get pendingInputs(): number {
-    return this.outbox.size;
+    return this.outbox.games;
   }
 
   /** A message that did not decode. */
@@ -549,7 +552,7 @@ export class Session {
       return { type: "full_frame", client: this.config.client };
     }
     const idle = this.lastInputMs !== null && nowMs - this.lastInputMs >= KEEPALIVE_AFTER_MS;
-    if (idle && this.status === "playing" && this.outbox.awaitsTheGames()) this.makeInput([], true, nowMs);
+    if (idle && this.status === "playing" && this.outbox.awaitsTheGames(KEEPALIVE_REACH)) this.makeInput([], true, nowMs);
     return this.outgoing.shift() ?? null;
   }
 

@@ -99,7 +99,7 @@ test("an input the server never accepted is known lost: by a later ack, or after
   assert.equal(d, c + 1, "numbers go on");
   while (s.pollTransmit(700)) {}
   assert.equal(s.pollTransmit(3700)?.type, "input", "3 s of silence bring a keepalive");
-  assert.equal(s.pendingInputs, 3, "no length of silence tells an input lost (a stalled path holds answers)");
+  assert.equal(s.pendingInputs, 2, "no length of silence tells an input lost (a stalled path holds answers)");
   s.receive(ack(d), 3800);
   assert.deepEqual(s.takeAnswers().map((x) => [x.seq, x.outcome.kind]), [[d, "accepted"], [a, "lost"]]);
   assert.equal(s.stats.inputsLost, 1);
@@ -133,6 +133,17 @@ test("a game idle with inputs unanswered sends a keepalive each second, whose ac
   assert.equal(s.stats.inputsLost, 3, "the first keepalive is lost too");
   assert.equal(keepalive(9000), null, "nothing of the game's awaits");
   assert.equal(s.pendingInputs, 0);
+});
+
+test("a server gone for good: keepalives stop where an ack could no longer tell", () => {
+  const s = playing();
+  s.input(walk(1), 260);
+  while (s.pollTransmit(260)) {}
+  let sent = 0;
+  for (let k = 1; k <= 100; k++) while (s.pollTransmit(260 + k * 1000)) sent++;
+  assert.equal(s.stats.keepalives, 64, "while the game's input is within 64 seqs of the next");
+  assert.equal(sent, 64);
+  assert.equal(s.pendingInputs, 1, "the game's input awaits still; the keepalives are not the game's");
 });
 
 test("inputs below a second welcome's next_seq are answered by the next ack, not forgotten", () => {
