@@ -8,6 +8,7 @@
 //! held or fenced ([`Owner`]).
 
 use super::owner::Owner;
+use super::state::{TickGate, TICK_WAIT_MOST};
 use impact_protocol::codec::encode;
 use impact_protocol::{Encoding, Epoch, ServerMessage, Stamp};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -144,11 +145,20 @@ impl<'a> Publishers<'a> {
 
 /// Runs until the sending side is dropped. `failures` counts the messages that could not be
 /// encoded (never: the server validates what it builds) or published.
-pub fn run(session: zenoh::Session, rx: Receiver<Out>, failures: Arc<AtomicU64>, owner: Arc<Owner>) {
+/// It publishes between the world's ticks (`gate`, as the state thread does): what a tick hands
+/// it goes out once the tick is over, in one burst, not beside the tick on its core.
+pub fn run(
+    session: zenoh::Session,
+    rx: Receiver<Out>,
+    failures: Arc<AtomicU64>,
+    owner: Arc<Owner>,
+    gate: Arc<TickGate>,
+) {
     let mut dropping = Publishers::new(&session, zenoh::qos::CongestionControl::Drop);
     let mut blocking = Publishers::new(&session, zenoh::qos::CongestionControl::Block);
     let mut numbers = Numbers::default();
     for out in rx {
+        gate.after_tick(TICK_WAIT_MOST);
         let Ok(epoch) = owner.stamp() else {
             match &out {
                 Out::Put { key, .. } => dropping.withheld(key, &numbers),

@@ -4,7 +4,7 @@ use super::egress::{self, Out};
 use super::error::RuntimeError;
 use super::metrics::{Metrics, Totals};
 use super::owner::{epoch_of, Owner};
-use super::state::{Capture, StateCounters, StateOptions, Watcher};
+use super::state::{Capture, StateCounters, StateOptions, TickGate, Watcher};
 use super::timing::LeadEstimator;
 use crate::rollback::RollbackConfig;
 use impact_core::scene::Scene;
@@ -371,9 +371,12 @@ fn start_world(zs: &Arc<Closer>, scene: Scene, opts: ServerOptions) -> Result<Se
     let egress_session = zs.0.clone();
     let egress_failures = Arc::new(AtomicU64::new(0));
     let ef = egress_failures.clone();
+    // The tick first on its core: the egress and state threads work between ticks.
+    let tick_gate = Arc::new(TickGate::default());
+    let egress_gate = tick_gate.clone();
     let egress_thread = std::thread::Builder::new()
         .name(format!("impact-egress-{world_id}"))
-        .spawn(move || egress::run(egress_session, egress_rx, ef, owner))
+        .spawn(move || egress::run(egress_session, egress_rx, ef, owner, egress_gate))
         .map_err(|e| RuntimeError::Thread(e.to_string()))?;
 
     let state_counters = Arc::new(StateCounters::default());
@@ -381,10 +384,10 @@ fn start_world(zs: &Arc<Closer>, scene: Scene, opts: ServerOptions) -> Result<Se
         let (tx, rx) = sync_channel::<Capture>(2);
         let (session, world, so, enc, c) =
             (zs.0.clone(), world_id.clone(), opts.state.clone(), opts.encoding, state_counters.clone());
-        let owner = shared.owner.clone();
+        let (owner, gate) = (shared.owner.clone(), tick_gate.clone());
         let t = std::thread::Builder::new()
             .name(format!("impact-state-{world_id}"))
-            .spawn(move || super::state::run(session, world, so, enc, rx, c, owner))
+            .spawn(move || super::state::run(session, world, so, enc, rx, c, owner, gate))
             .map_err(|e| RuntimeError::Thread(e.to_string()))?;
         (Some(tx), Some(t))
     } else {
@@ -403,6 +406,7 @@ fn start_world(zs: &Arc<Closer>, scene: Scene, opts: ServerOptions) -> Result<Se
             t.primary = primary;
             t.state_tx = state_tx;
             t.state_counters = state_counters;
+            t.tick_gate = tick_gate;
             let mut summary = t.run(&stop2, &zs.0, &wiring, follower, ingress_rx, control_rx, query_rx);
             // The state thread ends when its queue closes.
             t.state_tx = None;

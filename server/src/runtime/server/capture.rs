@@ -46,6 +46,7 @@ impl TickLoop {
         // Each client frame stands for 1/hz of a client's second.
         summary.state_client_s = summary.state_client_frames as f64 / f64::from(self.opts.state.hz.max(1));
         summary.state_busy_s = c.busy_ns.load(Ordering::Relaxed) as f64 / 1e9;
+        summary.state_waited_s = c.waited_ns.load(Ordering::Relaxed) as f64 / 1e9;
         summary.state_capture_s = c.capture_ns.load(Ordering::Relaxed) as f64 / 1e9;
         summary.state_skipped = c.skipped.load(Ordering::Relaxed);
     }

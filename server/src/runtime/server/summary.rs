@@ -86,6 +86,8 @@ pub struct Summary {
     pub state_client_s: f64,
     /// Seconds the state thread spent building, encoding and publishing.
     pub state_busy_s: f64,
+    /// Seconds the state thread waited for ticks under way to end.
+    pub state_waited_s: f64,
     /// Seconds the tick thread spent copying the state for it.
     pub state_capture_s: f64,
     /// Captures skipped because the state thread was busy.
@@ -184,11 +186,13 @@ impl std::fmt::Display for Summary {
             writeln!(
                 f,
                 "state streams: {:.0} bytes per client per second ({} client frames), world stream {:.0} bytes/s; \
-                 state thread {:.1} % of a core, copying {:.2} % of tick time, {} captures skipped",
+                 state thread {:.1} % of a core (and {:.1} % of the time waiting for ticks to end), copying {:.2} % \
+                 of tick time, {} captures skipped",
                 self.state_client_bytes as f64 / self.state_client_s.max(1e-9),
                 self.state_client_frames,
                 self.state_world_bytes as f64 / self.run_s.max(1e-9),
                 100.0 * self.state_busy_s / self.run_s.max(1e-9),
+                100.0 * self.state_waited_s / self.run_s.max(1e-9),
                 100.0 * self.state_capture_s / tick_s.max(1e-9),
                 self.state_skipped
             )?;

@@ -11,7 +11,7 @@ use crate::rollback::{RollbackConfig, Session};
 use crate::runtime::egress::Out;
 use crate::runtime::metrics::WorldMetrics;
 use crate::runtime::owner::{reachable, routed, ANNOUNCE_EVERY, HOLD_REACHABLE, HOLD_UNREACHABLE};
-use crate::runtime::state::{Capture, StateCounters};
+use crate::runtime::state::{Capture, StateCounters, TickGate};
 use crate::runtime::thread_clock::{ThreadClock, ThreadTimes};
 use crate::runtime::timing::LeadEstimator;
 use impact_core::scene::{avatar_position, AvatarRule, Scene};
@@ -54,6 +54,8 @@ pub(super) struct TickLoop {
     /// Where state captures go (`None`: no state streams).
     pub(super) state_tx: Option<SyncSender<Capture>>,
     pub(super) state_counters: Arc<StateCounters>,
+    /// Raised while a tick is under way: the state thread builds between ticks.
+    pub(super) tick_gate: Arc<TickGate>,
     /// The state frame the last capture was for.
     pub(super) state_frame: Option<u64>,
     pub(super) metrics: Option<WorldMetrics>,
@@ -121,6 +123,7 @@ impl TickLoop {
             last_stages: (0, Vec::new()),
             state_tx: None,
             state_counters: Arc::new(StateCounters::default()),
+            tick_gate: Arc::new(TickGate::default()),
             state_frame: None,
             metrics,
             period_events: 0,
@@ -219,6 +222,7 @@ impl TickLoop {
         let mut last_announce: Option<Instant> = None;
         let mut clock = ThreadClock::of_this_thread();
         let mut last_pass = (Instant::now(), clock.read());
+        let gate = self.tick_gate.clone();
         self.first_in_line();
         loop {
             if stop.load(Ordering::SeqCst) || self.opts.max_ticks.is_some_and(|m| self.summary.ticks >= m) {
@@ -247,7 +251,10 @@ impl TickLoop {
             // schedule from now (catching up by running ticks back to back would only make the
             // world run fast for a while); each dropped deadline counts as an overrun.
             let now = Instant::now();
-            if now < next {
+            // On schedule, the tick goes first on its core (`TickGate`); behind it, it does not
+            // hold the state and egress threads back.
+            let on_time = now < next;
+            if on_time {
                 std::thread::sleep(next - now);
             } else if now - next > dt * 4 {
                 let missed = ((now - next).as_secs_f64() / dt.as_secs_f64()) as u64;
@@ -257,8 +264,10 @@ impl TickLoop {
             next += dt;
             let before = clock.read();
             let t0 = Instant::now();
+            let ticking = on_time.then(|| gate.enter());
             self.tick(&ingress, &control, &queries);
             let ms = t0.elapsed().as_secs_f64() * 1e3;
+            drop(ticking);
             if let (Some(b), Some(a)) = (before, clock.read()) {
                 let spent = a.since(b);
                 let _ = self.tick_cpu.0.record((spent.run_ns / 1000).max(1));

@@ -19,10 +19,12 @@
 //! bytes at most, refilled each frame, so a full frame may spend what the deltas left.
 
 mod frame;
+mod gate;
 mod grid;
 mod thread;
 
 use frame::{avatar_state, build, estimate, f32x3, info_bytes, info_key, publish, touches_of, Held, Marks, Remap};
+pub use gate::{TickGate, Ticking, TICK_WAIT_MOST};
 use glam::DVec3;
 use grid::{AreaGrid, Filed};
 use impact_core::sim::world::{BodyTable, SimConfig, StaticWorld, Touch};
@@ -131,6 +133,8 @@ pub struct StateCounters {
     pub skipped: AtomicU64,
     /// Nanoseconds the state thread spent building, encoding and publishing.
     pub busy_ns: AtomicU64,
+    /// Nanoseconds the state thread waited for ticks under way to end (not in `busy_ns`).
+    pub waited_ns: AtomicU64,
     /// Nanoseconds the tick thread spent copying the state for it.
     pub capture_ns: AtomicU64,
 }
@@ -243,6 +247,13 @@ impl Streams {
     /// Builds this capture's frames: the world stream's (when `world` says someone listens),
     /// then each viewer's. `keep` keeps the decoded frames in the result (tests).
     pub fn frames(&mut self, cap: &Capture, world: bool, keep: bool) -> Vec<Publish> {
+        self.frames_between(cap, world, keep, &mut || {})
+    }
+
+    /// [`Streams::frames`], calling `pause` before each stream's frame (the state thread waits
+    /// there for a tick under way: [`TickGate`]).
+    pub fn frames_between(&mut self, cap: &Capture, world: bool, keep: bool, pause: &mut dyn FnMut()) -> Vec<Publish> {
+        pause();
         self.index(cap);
         let full = self.frames % self.opts.full_every.max(1) == 0;
         self.frames = self.frames.wrapping_add(1);
@@ -250,6 +261,7 @@ impl Streams {
         // The world stream: every body, no budget; skipped while nobody listens, and full again
         // for whoever comes.
         if world {
+            pause();
             let all: Vec<(f64, u32)> = (0..self.entries.len() as u32).map(|i| (0.0, i)).collect();
             let world_key = self.world_key.clone();
             let full = full || self.world.bodies.is_empty();
@@ -265,6 +277,7 @@ impl Streams {
         let mut seen = std::collections::BTreeSet::new();
         touches_of(cap, &mut self.touches);
         for v in &cap.watchers {
+            pause();
             let Ok(at) = self.entries.binary_search_by_key(&v.avatar, |e| e.motion.0) else {
                 continue;
             };
@@ -720,5 +733,22 @@ mod tests {
         assert!(!f1.full);
         assert_eq!(f1.left, vec![near]);
         assert!(f1.moved.iter().all(|m| m.0 != near));
+    }
+
+    #[test]
+    fn the_state_thread_may_pause_before_the_capture_and_before_each_stream() {
+        let (w, watchers) = arena(3);
+        let id = WorldId::new("arena").unwrap();
+        let (mut plain, mut paused) =
+            (Streams::new(id.clone(), opts(), Encoding::MsgPack), Streams::new(id, opts(), Encoding::MsgPack));
+        for world in [true, false] {
+            let cap = Capture::of(&w, watchers.clone());
+            let mut pauses = 0;
+            let a = paused.frames_between(&cap, world, false, &mut || pauses += 1);
+            let b = plain.frames(&cap, world, false);
+            assert_eq!(pauses, 1 + usize::from(world) + watchers.len(), "world stream {world}");
+            let bytes = |v: &[Publish]| v.iter().map(|p| (p.key.clone(), p.bytes.clone())).collect::<Vec<_>>();
+            assert_eq!(bytes(&a), bytes(&b), "pausing changed the frames");
+        }
     }
 }

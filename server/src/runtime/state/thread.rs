@@ -1,13 +1,13 @@
 //! The state thread: builds and publishes each capture's frames on Zenoh.
 
-use super::{Capture, StateCounters, StateOptions, Streams};
+use super::{Capture, StateCounters, StateOptions, Streams, TickGate, TICK_WAIT_MOST};
 use crate::runtime::owner::Owner;
 use impact_protocol::{keys, ClientId, Encoding, WorldId};
 use std::collections::BTreeMap;
 use std::sync::atomic::Ordering;
 use std::sync::mpsc::Receiver;
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 /// Whether anyone subscribes to what `p` publishes (`true` when it cannot tell).
 fn matching(p: Option<&zenoh::pubsub::Publisher<'static>>) -> bool {
@@ -26,7 +26,9 @@ struct Listener {
 ///
 /// Streams nobody subscribes to are not built: the world stream's publisher is asked every frame,
 /// each client's once a second (a client that subscribes is seen within a second and starts with
-/// a full frame), so players that never look at the state cost only the question.
+/// a full frame), so players that never look at the state cost only the question. It builds and
+/// publishes between the world's ticks (`gate`), the tick first.
+#[allow(clippy::too_many_arguments)]
 pub fn run(
     session: zenoh::Session,
     world: WorldId,
@@ -35,6 +37,7 @@ pub fn run(
     rx: Receiver<Capture>,
     counters: Arc<StateCounters>,
     owner: Arc<Owner>,
+    gate: Arc<TickGate>,
 ) {
     use zenoh::Wait;
     let drop = zenoh::qos::CongestionControl::Drop;
@@ -42,6 +45,7 @@ pub fn run(
     let world_publisher = publisher(keys::STATE.key(&world, None));
     let mut listeners: BTreeMap<ClientId, Listener> = BTreeMap::new();
     let check_every = u64::from(opts.hz.max(1));
+    let frame_span = Duration::from_secs(1) / opts.hz.max(1);
     let mut streams = Streams::new(world.clone(), opts, encoding);
     for (n, mut cap) in rx.into_iter().enumerate() {
         let t0 = Instant::now();
@@ -62,7 +66,18 @@ pub fn run(
             }
             l.listening
         });
-        let frames = streams.frames(&cap, matching(world_publisher.as_ref()), false);
+        // Waits for ticks to end, at most a frame's span a capture: frames come at their rate.
+        let mut waited = Duration::ZERO;
+        let mut pause = || {
+            let left = frame_span.saturating_sub(waited).min(TICK_WAIT_MOST);
+            if !left.is_zero() {
+                waited += gate.after_tick(left);
+            }
+        };
+        let listening = matching(world_publisher.as_ref());
+        let frames = streams.frames_between(&cap, listening, false, &mut pause);
+        // The burst of puts, whole between two ticks: Zenoh's transmit threads write it then too.
+        pause();
         let mut deferred = 0;
         for p in frames {
             let len = p.bytes.len() as u64;
@@ -93,6 +108,7 @@ pub fn run(
             }
         }
         counters.deferred.fetch_add(deferred, Ordering::Relaxed);
-        counters.busy_ns.fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        counters.busy_ns.fetch_add(t0.elapsed().saturating_sub(waited).as_nanos() as u64, Ordering::Relaxed);
+        counters.waited_ns.fetch_add(waited.as_nanos() as u64, Ordering::Relaxed);
     }
 }
