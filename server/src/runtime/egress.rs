@@ -7,8 +7,8 @@
 //! subscriber knows when messages were lost on the way, and nothing goes out while the world is
 //! held or fenced ([`Owner`]).
 
+use super::gate::{TickGate, TICK_WAIT_MOST};
 use super::owner::Owner;
-use super::state::{TickGate, TICK_WAIT_MOST};
 use impact_protocol::codec::encode;
 use impact_protocol::{Encoding, Epoch, ServerMessage, Stamp};
 use std::sync::atomic::{AtomicU64, Ordering};

@@ -20,6 +20,7 @@
 pub mod auth;
 mod egress;
 mod error;
+pub mod gate;
 pub mod http;
 pub mod metrics;
 pub mod owner;

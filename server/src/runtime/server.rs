@@ -2,9 +2,10 @@
 
 use super::egress::{self, Out};
 use super::error::RuntimeError;
+use super::gate::TickGate;
 use super::metrics::{Metrics, Totals};
 use super::owner::{epoch_of, Owner};
-use super::state::{Capture, StateCounters, StateOptions, TickGate, Watcher};
+use super::state::{Capture, StateCounters, StateOptions, Watcher};
 use super::timing::LeadEstimator;
 use crate::rollback::RollbackConfig;
 use impact_core::scene::Scene;

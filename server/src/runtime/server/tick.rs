@@ -9,9 +9,10 @@ use super::{
 };
 use crate::rollback::{RollbackConfig, Session};
 use crate::runtime::egress::Out;
+use crate::runtime::gate::TickGate;
 use crate::runtime::metrics::WorldMetrics;
 use crate::runtime::owner::{reachable, routed, ANNOUNCE_EVERY, HOLD_REACHABLE, HOLD_UNREACHABLE};
-use crate::runtime::state::{Capture, StateCounters, TickGate};
+use crate::runtime::state::{Capture, StateCounters};
 use crate::runtime::thread_clock::{ThreadClock, ThreadTimes};
 use crate::runtime::timing::LeadEstimator;
 use impact_core::scene::{avatar_position, AvatarRule, Scene};
@@ -54,7 +55,7 @@ pub(super) struct TickLoop {
     /// Where state captures go (`None`: no state streams).
     pub(super) state_tx: Option<SyncSender<Capture>>,
     pub(super) state_counters: Arc<StateCounters>,
-    /// Raised while a tick is under way: the state thread builds between ticks.
+    /// Raised while a tick is under way: the state and egress threads work between ticks.
     pub(super) tick_gate: Arc<TickGate>,
     /// The state frame the last capture was for.
     pub(super) state_frame: Option<u64>,
@@ -267,8 +268,9 @@ impl TickLoop {
             let ticking = on_time.then(|| gate.enter());
             self.tick(&ingress, &control, &queries);
             let ms = t0.elapsed().as_secs_f64() * 1e3;
+            let after = clock.read();
             drop(ticking);
-            if let (Some(b), Some(a)) = (before, clock.read()) {
+            if let (Some(b), Some(a)) = (before, after) {
                 let spent = a.since(b);
                 let _ = self.tick_cpu.0.record((spent.run_ns / 1000).max(1));
                 let _ = self.tick_cpu.1.record((spent.wait_ns / 1000).max(1));

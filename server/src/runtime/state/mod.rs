@@ -19,12 +19,10 @@
 //! bytes at most, refilled each frame, so a full frame may spend what the deltas left.
 
 mod frame;
-mod gate;
 mod grid;
 mod thread;
 
 use frame::{avatar_state, build, estimate, f32x3, info_bytes, info_key, publish, touches_of, Held, Marks, Remap};
-pub use gate::{TickGate, Ticking, TICK_WAIT_MOST};
 use glam::DVec3;
 use grid::{AreaGrid, Filed};
 use impact_core::sim::world::{BodyTable, SimConfig, StaticWorld, Touch};
@@ -251,7 +249,7 @@ impl Streams {
     }
 
     /// [`Streams::frames`], calling `pause` before each stream's frame (the state thread waits
-    /// there for a tick under way: [`TickGate`]).
+    /// there for a tick under way: [`TickGate`](crate::runtime::gate::TickGate)).
     pub fn frames_between(&mut self, cap: &Capture, world: bool, keep: bool, pause: &mut dyn FnMut()) -> Vec<Publish> {
         pause();
         self.index(cap);

@@ -1,6 +1,7 @@
 //! The state thread: builds and publishes each capture's frames on Zenoh.
 
-use super::{Capture, StateCounters, StateOptions, Streams, TickGate, TICK_WAIT_MOST};
+use super::{Capture, StateCounters, StateOptions, Streams};
+use crate::runtime::gate::{TickGate, TICK_WAIT_MOST};
 use crate::runtime::owner::Owner;
 use impact_protocol::{keys, ClientId, Encoding, WorldId};
 use std::collections::BTreeMap;
