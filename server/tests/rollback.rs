@@ -457,20 +457,7 @@ fn a_past_worlds_ray_index_follows_a_change_to_that_world() {
     use impact_server::rollback::history::Frame;
     let (_, s) = range_at(106);
     let state = s.frame(Tick(100)).expect("tick 100 is in the history").state.clone();
-    let mut frame = Frame {
-        tick: Tick(100),
-        state,
-        inputs: Vec::new(),
-        system: Vec::new(),
-        events: Vec::new(),
-        revision: 0,
-        paths: Vec::new(),
-        capped: false,
-        resolutions: 0,
-        ray_index: Default::default(),
-        paths_index: Default::default(),
-        paths_moved: Vec::new(),
-    };
+    let mut frame = Frame::at(Tick(100), state);
     let ray = Ray { origin: glam::DVec3::ZERO, dir: glam::DVec3::X, max_m: 50.0, exclude: Some(EntityId(0)) };
     let cast = |f: &Frame| {
         let mut out = Vec::new();

@@ -150,8 +150,18 @@ fn logic_only(who: Sender, action: &str) -> Result<(), (RejectReason, String)> {
     Err((RejectReason::NotAllowed, format!("`{action}` is game logic's: client {} has no game-logic role", who.client)))
 }
 
+/// An action's field, as a reject names it: `actions[k].name` (written out only for a reject).
+#[derive(Clone, Copy, Debug)]
+struct Field(usize, &'static str);
+
+impl std::fmt::Display for Field {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "actions[{}].{}", self.0, self.1)
+    }
+}
+
 /// The dynamic class named `name`.
-fn dynamic_class(w: &World, name: &str, field: &str) -> Result<crate::sim::world::ClassId, (RejectReason, String)> {
+fn dynamic_class(w: &World, name: &str, field: Field) -> Result<crate::sim::world::ClassId, (RejectReason, String)> {
     let props = &w.config.classes.props;
     match props.iter().position(|p| p.name == name) {
         Some(k) if !props[k].is_static => Ok(crate::sim::world::ClassId(k as u16)),
@@ -164,7 +174,7 @@ fn speed_ok(
     w: &World,
     slot_class: crate::sim::world::ClassId,
     v: [f64; 3],
-    field: &str,
+    field: Field,
 ) -> Result<(), (RejectReason, String)> {
     let max = w.config.classes.props[slot_class.0 as usize].max_speed_mps;
     let s = DVec3::from_array(v).length();
@@ -191,7 +201,7 @@ fn allowed(w: &World, slot: usize, action: &str) -> Result<(), (RejectReason, St
 }
 
 /// Whether a client may spawn a body of `shape` (`field` names it in the reason).
-fn spawnable(shape: &ShapeSpec, field: &str) -> Result<(), (RejectReason, String)> {
+fn spawnable(shape: &ShapeSpec, field: Field) -> Result<(), (RejectReason, String)> {
     if !shape.spawnable() {
         return Err((RejectReason::OutOfRange, format!("{field}: a client spawns a sphere, a capsule or a cuboid")));
     }
@@ -215,7 +225,7 @@ pub fn check_as(w: &World, who: Sender, actions: &[Action]) -> Result<(), (Rejec
                 if !who.logic {
                     allowed(w, s, "set_velocity")?;
                 }
-                speed_ok(w, w.bodies.class[s], *velocity, &format!("actions[{k}].velocity"))?;
+                speed_ok(w, w.bodies.class[s], *velocity, Field(k, "velocity"))?;
             }
             Action::ApplyImpulse { entity, .. } => {
                 let s = owned(w, who, *entity)?;
@@ -250,12 +260,12 @@ pub fn check_as(w: &World, who: Sender, actions: &[Action]) -> Result<(), (Rejec
             Action::SetClass { entity, class } => {
                 logic_only(who, "set_class")?;
                 owned(w, who, *entity)?;
-                dynamic_class(w, class, &format!("actions[{k}].class"))?;
+                dynamic_class(w, class, Field(k, "class"))?;
             }
             Action::Spawn { class, shape, .. } => {
                 logic_only(who, "spawn")?;
-                dynamic_class(w, class, &format!("actions[{k}].class"))?;
-                spawnable(shape, &format!("actions[{k}].shape"))?;
+                dynamic_class(w, class, Field(k, "class"))?;
+                spawnable(shape, Field(k, "shape"))?;
                 spawns += 1;
                 if w.bodies.len() + spawns > w.config.max_bodies as usize {
                     return Err((
@@ -268,11 +278,11 @@ pub fn check_as(w: &World, who: Sender, actions: &[Action]) -> Result<(), (Rejec
                 owned(w, who, *shooter)?;
             }
             Action::SpawnProjectile { shape, velocity, .. } => {
-                spawnable(shape, &format!("actions[{k}].shape"))?;
+                spawnable(shape, Field(k, "shape"))?;
                 let class = w.config.projectile_class.ok_or_else(|| {
                     (RejectReason::OutOfRange, "this scene has no projectile class: spawning is disabled".to_string())
                 })?;
-                speed_ok(w, class, *velocity, &format!("actions[{k}].velocity"))?;
+                speed_ok(w, class, *velocity, Field(k, "velocity"))?;
                 spawns += 1;
                 if w.bodies.len() + spawns > w.config.max_bodies as usize {
                     return Err((

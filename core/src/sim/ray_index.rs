@@ -8,7 +8,9 @@
 //! every body is filed in every cell its (slightly grown) sphere's box touches, the ray visits
 //! its cells in order along its length and stops only at a cell that begins beyond its nearest
 //! hit so far; the nearest hit is taken as the scan takes it (distance, then the lower id), so the
-//! order bodies are met in does not matter.
+//! order bodies are met in does not matter. Bodies moved since the index was built
+//! ([`RayIndex::moved`]) are tested by every ray where they are now, as bodies larger than a cell
+//! are.
 
 use super::ray::{body_hit, hit_of, static_hits, Best, Ray};
 use super::world::World;
@@ -31,6 +33,9 @@ pub struct RayIndex {
     items: Vec<u32>,
     /// Bodies larger than a cell, tested by every ray.
     large: Vec<u32>,
+    /// Bodies (ascending) that moved since they were filed ([`RayIndex::moved`]): their cells
+    /// are stale, so every ray tests them directly.
+    moved: Vec<u32>,
     /// The bodies the world had when the index was built (a world changed since is scanned).
     bodies: usize,
 }
@@ -96,6 +101,22 @@ impl RayIndex {
         }
         index.items = items;
         index
+    }
+
+    /// Notes that the bodies in `slots` moved (the world's bodies are otherwise as filed, and as
+    /// many): rays test them directly from now on, wherever they are. Returns false once more than
+    /// a sixteenth of the bodies have moved: the index is then better built again.
+    ///
+    /// A rollback that re-simulates a few bodies changes only their motion in the past worlds it
+    /// writes back; their indices stay, and a later shot at those ticks casts through them.
+    pub fn moved(&mut self, slots: impl IntoIterator<Item = usize>) -> bool {
+        for slot in slots {
+            let slot = slot as u32;
+            if let Err(at) = self.moved.binary_search(&slot) {
+                self.moved.insert(at, slot);
+            }
+        }
+        self.moved.len() * 16 <= self.bodies
     }
 
     /// The cell `p` is in, clamped to the grid.
@@ -196,6 +217,11 @@ pub fn cast_many_indexed(w: &World, index: &RayIndex, rays: &[Ray], out: &mut Ve
     for (r, ray) in rays.iter().enumerate() {
         let mut best: Best = None;
         for &i in &index.large {
+            body_hit(w, i as usize, ray, &mut best);
+        }
+        // Moved bodies where they are now; the cells they were filed in skip them.
+        for &i in &index.moved {
+            seen[i as usize] = r as u32;
             body_hit(w, i as usize, ray, &mut best);
         }
         index.walk(ray, |enter, bodies| {

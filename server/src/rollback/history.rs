@@ -15,7 +15,8 @@ pub struct Frame {
     /// The tick.
     pub tick: Tick,
     /// The world at the start of the tick, before its inputs. Changed through
-    /// [`Frame::state_mut`] only, which drops the ray index built from it.
+    /// [`Frame::state_mut`] (which drops the ray index built from it) or [`Frame::state_moved`]
+    /// only.
     pub state: World,
     /// The inputs applied at the tick.
     pub inputs: Vec<TickInput>,
@@ -45,9 +46,39 @@ pub struct Frame {
 }
 
 impl Frame {
+    /// The frame of `tick` starting from `state`, with nothing applied, published or kept yet.
+    pub fn at(tick: Tick, state: World) -> Frame {
+        Frame {
+            tick,
+            state,
+            inputs: Vec::new(),
+            system: Vec::new(),
+            events: Vec::new(),
+            revision: 0,
+            paths: Vec::new(),
+            paths_index: OnceLock::new(),
+            paths_moved: Vec::new(),
+            capped: false,
+            resolutions: 0,
+            ray_index: OnceLock::new(),
+        }
+    }
+
     /// `state` to change: its ray index is dropped (built again if a shot looks here).
     pub fn state_mut(&mut self) -> &mut World {
         self.ray_index = OnceLock::new();
+        &mut self.state
+    }
+
+    /// `state` to change in the motion of the bodies in `slots` only (a selective
+    /// re-simulation's write-back): a ray index built keeps the rest as filed and tests those
+    /// directly ([`RayIndex::moved`]), until too many have moved and it is dropped.
+    pub fn state_moved(&mut self, slots: impl IntoIterator<Item = usize>) -> &mut World {
+        if let Some(index) = self.ray_index.get_mut() {
+            if !index.moved(slots) {
+                self.ray_index = OnceLock::new();
+            }
+        }
         &mut self.state
     }
 
@@ -156,5 +187,69 @@ impl History {
     /// Frames oldest first.
     pub fn iter(&self) -> impl Iterator<Item = &Frame> {
         self.frames.iter()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DVec3;
+    use impact_core::sim::ray::{cast_many, Ray};
+    use impact_core::sim::ray_index::cast_many_indexed;
+
+    /// A row of 64 small balls along x, and a frame of it whose ray index is built.
+    fn frame() -> Frame {
+        let mut text = String::from("[world]\nname = \"h\"\n[[class]]\nname = \"ball\"\n");
+        for k in 0..64 {
+            text += &format!(
+                "[[body]]\nclass = \"ball\"\nshape = {{ type = \"sphere\", radius_m = 0.25 }}\nposition = [{}.0, 0.0, 0.0]\n",
+                2 * k
+            );
+        }
+        let state = impact_core::scene::Scene::parse(&text, "<history>").unwrap().world;
+        let f = Frame::at(Tick(0), state);
+        f.ray_index();
+        f
+    }
+
+    /// What a ray down the z axis at `x` hits in `f`, through its index and by the scan.
+    fn down_z(f: &Frame, x: f64) -> (Option<impact_protocol::RayHit>, Option<impact_protocol::RayHit>) {
+        let ray = Ray { origin: DVec3::new(x, 0.0, -50.0), dir: DVec3::Z, max_m: 100.0, exclude: None };
+        let (mut indexed, mut scan) = (Vec::new(), Vec::new());
+        cast_many_indexed(&f.state, f.ray_index(), &[ray], &mut indexed);
+        cast_many(&f.state, &[ray], &mut scan);
+        (indexed.pop().flatten(), scan.pop().flatten())
+    }
+
+    /// A rollback that writes back a few bodies keeps the frame's ray index, and a shot at the
+    /// frame then hits a body where it is now, not where the index filed it.
+    #[test]
+    fn a_body_moved_in_a_kept_index_is_hit_where_it_is() {
+        let mut f = frame();
+        let kept = f.ray_index() as *const RayIndex;
+        // The first ball jumps from x = 0 to the far end's gap at x = 125.
+        f.state_moved([0]).bodies.pos[0] = DVec3::new(125.0, 0.0, 0.0);
+        assert!(std::ptr::eq(f.ray_index(), kept), "a few bodies moved: the index is kept");
+        let (indexed, scan) = down_z(&f, 125.0);
+        assert_eq!(scan.as_ref().map(|h| h.entity), Some(f.state.bodies.id[0]));
+        assert_eq!(indexed, scan);
+        let (indexed, scan) = down_z(&f, 0.0);
+        assert_eq!(scan, None);
+        assert_eq!(indexed, scan);
+    }
+
+    /// More than a sixteenth of the bodies moved: the index is dropped and built again.
+    #[test]
+    fn an_index_with_many_bodies_moved_is_built_again() {
+        let mut f = frame();
+        let kept = f.ray_index() as *const RayIndex;
+        f.state_moved(0..4);
+        assert!(std::ptr::eq(f.ray_index(), kept));
+        let w = f.state_moved(4..5);
+        w.bodies.pos[4] = DVec3::new(125.0, 0.0, 0.0);
+        assert!(f.ray_index.get().is_none(), "5 of 64 moved: dropped");
+        let (indexed, scan) = down_z(&f, 125.0);
+        assert_eq!(indexed, scan);
+        assert!(scan.is_some());
     }
 }

@@ -474,20 +474,8 @@ impl Session {
         adv.rays.append(&mut self.out.rays);
         adv.skipped.append(&mut self.out.skipped);
         let resolutions = self.stepper.stats.resolutions;
-        let frame = Frame {
-            tick,
-            state,
-            inputs,
-            system,
-            events: adv.events.clone(),
-            revision: 0,
-            paths,
-            capped,
-            resolutions,
-            ray_index: Default::default(),
-            paths_index: Default::default(),
-            paths_moved: Vec::new(),
-        };
+        let frame =
+            Frame { inputs, system, events: adv.events.clone(), paths, capped, resolutions, ..Frame::at(tick, state) };
         if let Some(old) = self.history.push(frame) {
             // The state after the confirmed tick is the start of the oldest tick still held.
             let after = self.history.oldest().and_then(|t| self.history.get(t)).map_or(0, |f| f.state.state_hash());

@@ -418,7 +418,8 @@ pub fn resimulate(s: &mut Session, from: Tick, adv: &mut Advance) -> bool {
         let after = &run.starts[n + 1].0;
         if k + 1 < now.0 {
             let next = s.history.get_mut(Tick(k + 1)).expect("held");
-            patch(next.state_mut(), after, &reach);
+            let slots: Vec<usize> = after.bodies.id.iter().filter_map(|id| next.state.bodies.slot(*id)).collect();
+            patch(next.state_moved(slots), after, &reach);
         } else {
             patch(&mut s.world, after, &reach);
         }
