@@ -29,6 +29,7 @@ use impact_core::sim::input::RewoundRay;
 use impact_core::sim::ray_index::RayIndex;
 use impact_core::sim::{Stepper, TickInput, TickOutput, World};
 use impact_protocol::{Action, CollisionEvent, EntityId, RayResult, Tick};
+use smallvec::SmallVec;
 use std::collections::BTreeSet;
 use std::sync::OnceLock;
 
@@ -39,11 +40,12 @@ const RAY_SLACK_M: f64 = 1e-6;
 /// What one input of the interval touches.
 struct Touch {
     /// The bodies its actions act on, each ray's shooter, and what its rays hit in a past world
-    /// the rollback leaves unchanged.
-    named: Vec<EntityId>,
+    /// the rollback leaves unchanged (inline: a rollback gathers one per input of its interval,
+    /// and an input names one or two).
+    named: SmallVec<[EntityId; 2]>,
     /// Its rays' segments (rays cast again in the re-simulation), tested against the path boxes
     /// of the tick `at`.
-    rays: Vec<(DVec3, DVec3)>,
+    rays: SmallVec<[(DVec3, DVec3); 1]>,
     /// The tick whose path boxes `rays` are tested against.
     at: Tick,
     /// Whether the sub-world re-simulates it (it touches the reach set).
@@ -53,7 +55,7 @@ struct Touch {
 impl Touch {
     /// `named`, and every body whose old path box at `at` one of its rays crosses.
     fn all(&self, s: &Session) -> Vec<EntityId> {
-        let mut out = self.named.clone();
+        let mut out = self.named.to_vec();
         if let Some(f) = s.history.get(self.at) {
             let mut slots = Vec::new();
             for (a, b) in &self.rays {
@@ -128,7 +130,7 @@ fn touches(s: &Session, from: Tick, now: Tick) -> Option<Vec<Vec<Touch>>> {
             if input.logged || input.actions.iter().any(unbounded) {
                 return None;
             }
-            let mut t = Touch { named: Vec::new(), rays: Vec::new(), at: Tick(k), inside: false };
+            let mut t = Touch { named: SmallVec::new(), rays: SmallVec::new(), at: Tick(k), inside: false };
             for a in &input.actions {
                 match a {
                     Action::SetVelocity { entity, .. }
