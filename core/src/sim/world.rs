@@ -263,8 +263,10 @@ pub struct BodyTable {
     /// Owning client, if any.
     pub owner: Vec<Option<ClientId>>,
     /// Game state, as game logic set it: no part of the physics, but of the world (rolled
-    /// back, replayed, hashed).
-    pub game: Vec<GameState>,
+    /// back, replayed, hashed). Each body's behind its own `Arc`, so the copy of the table
+    /// that game logic's first command of a tick makes shares every state but the one it sets
+    /// (a copy of each map was most of that tick's work at 300 players).
+    pub game: Vec<Arc<GameState>>,
     /// The tick of each body's last teleport (game logic's), if any: where its path breaks, so
     /// that no client draws or predicts across it.
     pub teleported: Vec<Option<Tick>>,
@@ -385,7 +387,7 @@ impl Bodies {
 
     /// Sets the game state of the body in `slot`.
     pub fn set_game(&mut self, slot: usize, state: GameState) {
-        Arc::make_mut(&mut self.table).game[slot] = state;
+        Arc::make_mut(&mut self.table).game[slot] = Arc::new(state);
     }
 
     /// The slot of an entity (binary search: ids are sorted).
@@ -443,7 +445,7 @@ impl Bodies {
         t.rot.push(b.rot);
         t.inv_mass.push(b.inv_mass);
         t.owner.push(b.owner);
-        t.game.push(GameState::default());
+        t.game.push(Arc::default());
         t.teleported.push(None);
     }
 

@@ -137,7 +137,7 @@ pub fn checkpoint_world(w: &World) -> Result<Checkpoint, String> {
                 owner: b.owner[i],
                 asleep: b.asleep[i],
                 still_ticks: b.still_ticks[i],
-                game: b.game[i].clone(),
+                game: impact_protocol::GameState::clone(&b.game[i]),
                 teleported: b.teleported[i],
             })
         })

@@ -122,7 +122,7 @@ fn info(cap: &Capture, e: &Entry) -> BodyInfo {
         rotation,
         local_shape: shape.and_then(|(s, _)| primitive(s)),
         state: match e.src {
-            Src::Dynamic(i) => cap.table.game[i].clone(),
+            Src::Dynamic(i) => GameState::clone(&cap.table.game[i]),
             _ => GameState::default(),
         },
         teleported: match e.src {
