@@ -38,8 +38,8 @@ pub struct Plan {
     pub characters: bool,
 }
 
-/// Below this many bodies brute force beats building any structure.
-const BRUTE_FORCE_MAX: usize = 48;
+/// Up to this many bodies at start a world is planned as one that fills up later.
+const SMALL_WORLD: usize = 48;
 
 impl Plan {
     /// The plan the scene needs.
@@ -63,11 +63,12 @@ impl Plan {
         let fastest_now = b.vel.iter().map(|v| v.length()).fold(0.0, f64::max);
         let ccd_sampling = max_speed.max(fastest_now) * cfg.dt > step_m;
         // Grid for bodies of similar size; sweep and prune when sizes vary a lot (the grid's cell
-        // is the largest box, which would put many small bodies in one cell).
+        // is the largest box, which would put many small bodies in one cell), and for a world
+        // that starts with few: the plan is made once, and players' avatars and spawns join
+        // later (a world of characters starts empty and holds hundreds). Sweep and prune costs
+        // what brute force does on a few bodies, and keeps up as they come.
         let (rmin, rmax) = b.radius.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &r| (lo.min(r), hi.max(r)));
-        let broadphase = if b.len() <= BRUTE_FORCE_MAX {
-            BroadphaseKind::BruteForce
-        } else if rmax > 8.0 * rmin {
+        let broadphase = if b.len() <= SMALL_WORLD || rmax > 8.0 * rmin {
             BroadphaseKind::SweepAndPrune
         } else {
             BroadphaseKind::Grid
