@@ -61,7 +61,10 @@ impl Plan {
         let step_m = 0.5 * (min_extent + min_static.min(min_extent));
         let max_speed = cfg.classes.props.iter().filter(|p| !p.is_static).map(|p| p.max_speed_mps).fold(0.0, f64::max);
         let fastest_now = b.vel.iter().map(|v| v.length()).fold(0.0, f64::max);
-        let ccd_sampling = max_speed.max(fastest_now) * cfg.dt > step_m;
+        // A world that starts with no dynamic body cannot know how small what joins it will be
+        // (avatars, spawns, projectiles): it samples. A pair that moves less than its own
+        // extents in a tick is never sampled, so a slow world pays nothing for it.
+        let ccd_sampling = (b.is_empty() && max_speed > 0.0) || max_speed.max(fastest_now) * cfg.dt > step_m;
         // Grid for bodies of similar size; sweep and prune when sizes vary a lot (the grid's cell
         // is the largest box, which would put many small bodies in one cell), and for a world
         // that starts with few: the plan is made once, and players' avatars and spawns join
@@ -131,5 +134,48 @@ impl fmt::Display for Plan {
         writeln!(f, "  characters      {}", on(self.characters))?;
         writeln!(f, "  rollback        {}", on(self.rollback))?;
         write!(f, "  always          static-static pairs never tested; resting pairs not re-tested")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Shape;
+    use crate::sim::world::{ClassId, NewBody};
+    use crate::sim::{Stepper, TickOutput};
+    use glam::{DQuat, DVec3};
+
+    /// A world that starts with no dynamic body plans for what joins it: a fast box spawned
+    /// later hits a thin wall instead of passing through it between two ticks.
+    #[test]
+    fn a_world_that_starts_empty_samples_what_joins_fast() {
+        let text = r#"
+[world]
+name = "empty"
+[[class]]
+name = "bullet"
+max_speed_mps = 200.0
+[[class]]
+name = "wall"
+static = true
+[[body]]
+class = "wall"
+shape = { type = "cuboid", half_extents_m = [0.05, 2.0, 2.0] }
+position = [0.0, 0.0, 0.0]
+"#;
+        let mut w = crate::scene::Scene::parse(text, "<empty>").unwrap().world;
+        let plan = Plan::for_world(&w);
+        assert!(plan.ccd_sampling, "{plan}");
+        // 150 m/s: 2.3 m a tick, through 0.1 m of wall from one tick's end to the next.
+        let shape = Shape::Cuboid { half_extents: DVec3::splat(0.05) };
+        let (pos, vel) = (DVec3::new(-1.2, 0.0, 0.0), DVec3::new(150.0, 0.0, 0.0));
+        let body = NewBody { class: ClassId(0), shape, pos, vel, rot: DQuat::IDENTITY, inv_mass: 1.0, owner: None };
+        w.spawn(body).unwrap();
+        let mut stepper = Stepper::new(plan, false);
+        let mut out = TickOutput::default();
+        for _ in 0..3 {
+            stepper.step_with(&mut w, &[], &[], &mut out);
+        }
+        assert!(w.bodies.pos[0].x < 0.0, "through the wall: {}", w.bodies.pos[0]);
     }
 }
