@@ -265,7 +265,7 @@ pub struct BodyTable {
     /// Game state, as game logic set it: no part of the physics, but of the world (rolled
     /// back, replayed, hashed). Each body's behind its own `Arc`, so the copy of the table
     /// that game logic's first command of a tick makes shares every state but the one it sets
-    /// (a copy of each map was most of that tick's work at 300 players).
+    /// (copying every map was 9 % of the tick thread's time in a 300-player deathmatch).
     pub game: Vec<Arc<GameState>>,
     /// The tick of each body's last teleport (game logic's), if any: where its path breaks, so
     /// that no client draws or predicts across it.
