@@ -2,12 +2,15 @@
 //!
 //! A tick's wall time mixes the server's work with the machine's: on a shared machine (a load
 //! generator beside the server, another world's tick, the state thread) a tick can take twice its
-//! CPU time because it waited for a core. Linux counts both per thread in
-//! `/proc/thread-self/schedstat`: nanoseconds run on a CPU and nanoseconds spent runnable on a
-//! run queue. Read before and after each tick, the two split the wall time into the server's own
-//! cost and the machine's share. The file is opened once on the measured thread and re-read from
-//! the start (a few microseconds); elsewhere than Linux, or where the file is missing, the clock
-//! reads nothing and the figures are left out.
+//! CPU time because it waited for a core. Linux counts both per thread: the time run on a CPU
+//! (`CLOCK_THREAD_CPUTIME_ID`, exact to the nanosecond when read) and the time spent runnable on
+//! a run queue (`/proc/thread-self/schedstat`, brought up to date each time the thread is put
+//! back on a CPU, so exact whenever the thread reads it itself). Read before and after each tick,
+//! the two split the wall time into the server's own cost and the machine's share. The run time
+//! is not taken from `schedstat` too: there it advances only at scheduler events (a timer tick
+//! every 4 ms at `HZ=250`), which would round a 2 ms tick's CPU to 0 or 4 ms. The file is opened
+//! once on the measured thread and re-read from the start (a few microseconds); elsewhere than
+//! Linux, or where the file is missing, the clock reads nothing and the figures are left out.
 //!
 //! [`set_nice`] puts the calling thread ahead of others when a core is contended: the tick thread
 //! asks for it (`ServerOptions::tick_nice`), so its wait shrinks where the system allows.
@@ -52,7 +55,21 @@ impl ThreadClock {
         let file = self.file.as_mut()?;
         let mut buf = [0u8; 96];
         let n = file.seek(SeekFrom::Start(0)).and_then(|_| file.read(&mut buf)).ok()?;
-        parse(&buf[..n])
+        let scheduled = parse(&buf[..n])?;
+        Some(ThreadTimes { run_ns: run_ns(), ..scheduled })
+    }
+}
+
+/// The calling thread's CPU time, exact (the schedstat file is read only on Linux).
+fn run_ns() -> u64 {
+    #[cfg(target_os = "linux")]
+    {
+        let t = rustix::time::clock_gettime(rustix::time::ClockId::ThreadCPUTime);
+        (t.tv_sec as u64).saturating_mul(1_000_000_000).saturating_add(t.tv_nsec as u64)
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        0
     }
 }
 
@@ -139,6 +156,19 @@ mod tests {
         // 20 ms of wall time spinning: run + wait covers it (the scheduler's ticks are coarse,
         // so allow a little under), and a sleeping thread's clock would not move at all.
         assert!(spent.run_ns + spent.wait_ns >= 15_000_000, "{spent:?}");
+        // Short spans are counted to the microsecond, not to the scheduler's 4 ms tick: a
+        // thread that spins for 2 ms ran or waited for all of it, every time.
+        for _ in 0..5 {
+            let before = clock.read().expect("read");
+            let t = std::time::Instant::now();
+            while t.elapsed() < std::time::Duration::from_millis(2) {
+                x = std::hint::black_box(x.wrapping_add(1));
+            }
+            let wall = t.elapsed().as_nanos() as u64;
+            let spent = clock.read().expect("read").since(before);
+            assert!(spent.run_ns + spent.wait_ns >= wall * 9 / 10, "{spent:?} in {wall} ns");
+            assert!(spent.run_ns + spent.wait_ns <= wall + 1_000_000, "{spent:?} in {wall} ns");
+        }
         let idle = clock.read().expect("read");
         std::thread::sleep(std::time::Duration::from_millis(20));
         let slept = clock.read().expect("read").since(idle);
