@@ -45,7 +45,7 @@ fn follow(s: &mut Session, log: &[ConfirmedTick], scene: &Scene) -> Vec<u32> {
     let from = s.now();
     for entry in log.iter().filter(|e| e.tick >= from) {
         // Through the wire form, as a standby receives it.
-        let wire: LogTick = serde_json::from_str(&serde_json::to_string(&entry.to_wire()).unwrap()).unwrap();
+        let wire: LogTick = serde_json::from_str(&serde_json::to_string(&entry.clone().into_wire()).unwrap()).unwrap();
         let t = ConfirmedTick::from_wire(wire, avatar).unwrap();
         s.follow(t.tick, t.system, t.inputs).unwrap();
         s.advance();
@@ -176,7 +176,7 @@ fn game_logic_commands_roll_back_log_and_replay_bit_for_bit() {
     let path = std::env::temp_dir().join(format!("impact-logic-recording-{}.jsonl", std::process::id()));
     let mut r = Recorder::create(&path, &scene).unwrap();
     for l in &log {
-        r.write(&l.to_wire());
+        r.write(&l.clone().into_wire());
     }
     r.flush().unwrap();
     let report = recording::replay(&scene, &path, &Pool::sequential(), |_| {}).unwrap();
@@ -192,7 +192,7 @@ fn a_recording_replays_and_a_tampered_one_is_caught_where_it_changed() {
     let path = dir.join(format!("impact-recording-test-{}.jsonl", std::process::id()));
     let mut r = Recorder::create(&path, &scene).unwrap();
     for l in &log {
-        r.write(&l.to_wire());
+        r.write(&l.clone().into_wire());
     }
     r.flush().unwrap();
     let report = recording::replay(&scene, &path, &Pool::sequential(), |_| {}).unwrap();
@@ -261,7 +261,7 @@ fn a_recording_replays_with_the_values_it_ran_with() {
     let rec = dir.join("tuned.jsonl");
     let mut r = Recorder::create(&rec, &scene).unwrap();
     for l in &log {
-        r.write(&l.to_wire());
+        r.write(&l.clone().into_wire());
     }
     r.flush().unwrap();
     // The same scene without the key: its default slop differs, the recording's is used.

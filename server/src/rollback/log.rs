@@ -30,18 +30,18 @@ pub struct ConfirmedTick {
 /// The class and shape the scene gives avatars (a logged spawn names only client and position).
 pub type AvatarShape<'a> = Option<(ClassId, &'a Shape)>;
 
-/// An input in its logged form.
-pub fn logged_input(i: &TickInput, tick: Tick) -> LoggedInput {
+/// An input in its logged form (moved: the log entry is the last to need it).
+pub fn logged_input(i: TickInput, tick: Tick) -> LoggedInput {
     LoggedInput {
         client: i.client,
         seq: i.seq,
         tick,
         view_tick: i.view_tick,
-        actions: i.actions.clone(),
+        actions: i.actions,
         rewound: i
             .rewound
-            .iter()
-            .map(|r| LoggedRay { action: r.action, view_tick: r.view_tick, clamped: r.clamped, hit: r.hit.clone() })
+            .into_iter()
+            .map(|r| LoggedRay { action: r.action, view_tick: r.view_tick, clamped: r.clamped, hit: r.hit })
             .collect(),
         logic: i.logic,
     }
@@ -96,12 +96,13 @@ pub fn system_action(l: &LoggedSystem, avatar: AvatarShape<'_>) -> Result<System
 }
 
 impl ConfirmedTick {
-    /// The wire form.
-    pub fn to_wire(&self) -> LogTick {
+    /// The wire form (the inputs moved into it, not copied: it is made once a tick, for the log).
+    pub fn into_wire(self) -> LogTick {
+        let tick = self.tick;
         LogTick {
-            tick: self.tick,
+            tick,
             system: self.system.iter().map(logged_system).collect(),
-            inputs: self.inputs.iter().map(|i| logged_input(i, self.tick)).collect(),
+            inputs: self.inputs.into_iter().map(|i| logged_input(i, tick)).collect(),
             state_hash: self.state_hash,
         }
     }

@@ -20,8 +20,8 @@ use zenoh::Wait;
 pub enum Out {
     /// Publish `msg` on `key`.
     Put {
-        /// Key expression.
-        key: String,
+        /// Key expression (shared: a client's keys are formatted once).
+        key: Arc<str>,
         /// The message (boxed: the queue's slots stay small).
         msg: Box<ServerMessage>,
         /// Its encoding (sets the sample's tag).
@@ -33,7 +33,7 @@ pub enum Out {
     /// subscriber (a standby) slows this thread rather than lose an entry.
     Log {
         /// Key expression.
-        key: String,
+        key: Arc<str>,
         /// The message.
         msg: Box<ServerMessage>,
         /// Its encoding.
@@ -94,7 +94,7 @@ impl Numbers {
 struct Publishers<'a> {
     session: &'a zenoh::Session,
     congestion: zenoh::qos::CongestionControl,
-    by_key: std::collections::HashMap<String, (zenoh::pubsub::Publisher<'static>, KeyCount)>,
+    by_key: std::collections::HashMap<Arc<str>, (zenoh::pubsub::Publisher<'static>, KeyCount)>,
 }
 
 impl<'a> Publishers<'a> {
@@ -115,7 +115,7 @@ impl<'a> Publishers<'a> {
     /// message's number on the key.
     fn put(
         &mut self,
-        key: String,
+        key: Arc<str>,
         bytes: Vec<u8>,
         encoding: Encoding,
         epoch: Option<Epoch>,
@@ -125,7 +125,7 @@ impl<'a> Publishers<'a> {
             if self.by_key.len() >= PUBLISHERS {
                 self.by_key.clear();
             }
-            let declared = self.session.declare_publisher(key.clone()).congestion_control(self.congestion).wait();
+            let declared = self.session.declare_publisher(key.to_string()).congestion_control(self.congestion).wait();
             match declared {
                 Ok(p) => {
                     self.by_key.insert(key.clone(), (p, KeyCount::default()));
@@ -133,7 +133,7 @@ impl<'a> Publishers<'a> {
                 Err(_) => return false,
             }
         }
-        let Some((p, count)) = self.by_key.get_mut(&key) else { return false };
+        let Some((p, count)) = self.by_key.get_mut(&*key) else { return false };
         let number = numbers.next(count);
         let put = p.put(bytes).encoding(encoding.zenoh_tag());
         match epoch {

@@ -200,9 +200,10 @@ struct ClientState {
     /// Its recent delays, for the lead recommended in its acks.
     timing: LeadEstimator,
     /// Its `client/{id}/ack` and `client/{id}/events` keys, formatted once (a key is formatted
-    /// for every ack and event batch otherwise: 5 % of the tick at 1,000 clients).
-    ack_key: String,
-    events_key: String,
+    /// for every ack and event batch otherwise: 5 % of the tick at 1,000 clients), shared with
+    /// the egress queue's messages rather than copied into each.
+    ack_key: Arc<str>,
+    events_key: Arc<str>,
     /// It asked for a full state frame (after a gap); cleared once a capture carries the ask.
     want_full: bool,
 }
@@ -237,7 +238,7 @@ fn reason_index(r: RejectReason) -> usize {
 
 /// Sends a message through the bounded egress queue (the egress thread encodes it); a full queue
 /// drops it and counts.
-fn send(tx: &SyncSender<Out>, shared: &Shared, key: String, msg: ServerMessage, encoding: Encoding) {
+fn send(tx: &SyncSender<Out>, shared: &Shared, key: Arc<str>, msg: ServerMessage, encoding: Encoding) {
     let dropped_before = shared.keyed_dropped.load(Ordering::Relaxed);
     if let Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) =
         tx.try_send(Out::Put { key, msg: Box::new(msg), encoding, dropped_before })

@@ -37,7 +37,7 @@ pub(super) fn declare_primary(
                 let refuse = |client: ClientId, header: Option<(u32, Tick)>, reason: RejectReason, detail: String| {
                     shared.rejected_in_callbacks[reason_index(reason)].fetch_add(1, Ordering::Relaxed);
                     let key = keys::CLIENT_ACK.key(&world_of(&key), Some(client));
-                    send(&etx, &shared, key, reject(client, header, reason, detail), encoding);
+                    send(&etx, &shared, key.into(), reject(client, header, reason, detail), encoding);
                 };
                 let Some(client) = from_key else {
                     return; // not a key of ours: nobody to answer

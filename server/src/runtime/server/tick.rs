@@ -73,7 +73,7 @@ pub(super) struct TickLoop {
     /// Inputs acked and server actions queued in this tick: the `log/admitted` message.
     pub(super) admitted: Admitted,
     /// This tick's acks, held until `admitted` is out.
-    pub(super) acks: Vec<(String, ServerMessage, Encoding)>,
+    pub(super) acks: Vec<(Arc<str>, ServerMessage, Encoding)>,
     /// Marks a standby that took over keeps of what its primary published, so it never publishes
     /// a tick twice (see [`Published`]).
     pub(super) earlier: Published,
@@ -145,29 +145,31 @@ impl TickLoop {
     }
 
     /// Hands `msg` to the egress thread, which encodes and publishes it.
-    pub(super) fn put(&self, key: String, msg: ServerMessage, encoding: Encoding) {
-        send(&self.egress, &self.shared, key, msg, encoding);
+    pub(super) fn put(&self, key: impl Into<Arc<str>>, msg: ServerMessage, encoding: Encoding) {
+        send(&self.egress, &self.shared, key.into(), msg, encoding);
     }
 
     /// Publishes on the log streams: in order with everything else, but never dropped by
     /// congestion (a standby that misses an entry must start again from a checkpoint).
     fn put_log(&self, key: String, msg: ServerMessage) {
         let (encoding, dropped_before) = (self.opts.encoding, self.shared.keyed_dropped.load(Ordering::Relaxed));
-        if self.egress.try_send(Out::Log { key, msg: Box::new(msg), encoding, dropped_before }).is_err() {
+        if self.egress.try_send(Out::Log { key: key.into(), msg: Box::new(msg), encoding, dropped_before }).is_err() {
             self.shared.dropped_for_key();
         }
     }
 
     /// A client's `client/{id}/ack` key (formatted once, when the client was first seen).
-    fn ack_key(&self, client: ClientId) -> String {
-        self.clients.get(&client).map_or_else(|| keys::CLIENT_ACK.key(&self.world, Some(client)), |c| c.ack_key.clone())
+    fn ack_key(&self, client: ClientId) -> Arc<str> {
+        self.clients
+            .get(&client)
+            .map_or_else(|| keys::CLIENT_ACK.key(&self.world, Some(client)).into(), |c| c.ack_key.clone())
     }
 
     /// A client's `client/{id}/events` key, likewise.
-    fn events_key(&self, client: ClientId) -> String {
+    fn events_key(&self, client: ClientId) -> Arc<str> {
         self.clients
             .get(&client)
-            .map_or_else(|| keys::CLIENT_EVENTS.key(&self.world, Some(client)), |c| c.events_key.clone())
+            .map_or_else(|| keys::CLIENT_EVENTS.key(&self.world, Some(client)).into(), |c| c.events_key.clone())
     }
 
     /// The state of a client first seen now.
@@ -185,8 +187,8 @@ impl TickLoop {
             tokens: f64::from(self.opts.inputs_per_client_per_s),
             encoding,
             timing: LeadEstimator::default(),
-            ack_key: keys::CLIENT_ACK.key(&self.world, Some(client)),
-            events_key: keys::CLIENT_EVENTS.key(&self.world, Some(client)),
+            ack_key: keys::CLIENT_ACK.key(&self.world, Some(client)).into(),
+            events_key: keys::CLIENT_EVENTS.key(&self.world, Some(client)).into(),
             want_full: false,
         }
     }
@@ -303,7 +305,7 @@ impl TickLoop {
             if self.earlier.logged(log.tick) {
                 continue;
             }
-            let entry = log.to_wire();
+            let entry = log.into_wire();
             if let Some(r) = self.record.as_mut() {
                 r.write(&entry);
             }
@@ -704,9 +706,12 @@ impl TickLoop {
             ));
             self.put_log(keys::LOG_ADMITTED.key(&self.world, None), msg);
         }
-        for (key, ack, encoding) in std::mem::take(&mut self.acks) {
+        // Drained, not taken: the buffer keeps its capacity from tick to tick.
+        let mut acks = std::mem::take(&mut self.acks);
+        for (key, ack, encoding) in acks.drain(..) {
             self.put(key, ack, encoding);
         }
+        self.acks = acks;
     }
 
     /// Steps the present tick and publishes what it produced: events, corrections, the tick
@@ -763,7 +768,7 @@ impl TickLoop {
         // A standby that took over re-simulates ticks its primary already logged or confirmed:
         // they were published then, and are not again.
         if let Some(log) = adv.log.take().filter(|l| !self.earlier.logged(l.tick)) {
-            let entry = log.to_wire();
+            let entry = log.into_wire();
             if let Some(r) = self.record.as_mut() {
                 r.write(&entry);
             }
