@@ -17,7 +17,7 @@
 //! and the cursors (each run is two loads): the cursors walked every entry four times and their
 //! loop exits were the sweep's main cost. Both paths give the same order and the same pairs.
 
-use crate::geometry::Aabb;
+use crate::geometry::{floor_i64, Aabb};
 use crate::par::{Pool, MIN_PIECE, MIN_PIECE_HEAVY};
 use glam::DVec3;
 
@@ -98,15 +98,7 @@ impl Grid {
     #[inline]
     fn coords(&self, p: DVec3) -> [i64; 3] {
         let q = (p - self.origin) * self.inv_cell;
-        let f = |v: f64| {
-            let t = v as i64;
-            if (t as f64) > v {
-                t - 1
-            } else {
-                t
-            }
-        };
-        [f(q.x), f(q.y), f(q.z)]
+        [floor_i64(q.x), floor_i64(q.y), floor_i64(q.z)]
     }
 
     /// Key of the cell holding `min`, the lower corner of a box this grid was built from: at or

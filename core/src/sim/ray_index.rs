@@ -14,6 +14,7 @@
 
 use super::ray::{body_hit, hit_of, static_hits, Best, Ray};
 use super::world::World;
+use crate::geometry::floor_i64;
 use glam::DVec3;
 use impact_protocol::RayHit;
 
@@ -121,8 +122,8 @@ impl RayIndex {
 
     /// The cell `p` is in, clamped to the grid.
     fn cell_of(&self, p: DVec3) -> [i64; 3] {
-        let q = ((p - self.origin) / self.cell).floor();
-        [0, 1, 2].map(|k| (q[k] as i64).clamp(0, self.dims[k] - 1))
+        let q = (p - self.origin) / self.cell;
+        [0, 1, 2].map(|k| floor_i64(q[k]).clamp(0, self.dims[k] - 1))
     }
 
     fn at(&self, c: [i64; 3]) -> usize {

@@ -4,7 +4,7 @@
 //! The triangle under a point is found from the cell and the side of the diagonal; its plane
 //! N = (P1 - P0) x (P2 - P0) gives the height Qy = (-Nx Qx - Nz Qz + N.P0) / Ny.
 
-use crate::geometry::Aabb;
+use crate::geometry::{floor_i64, Aabb};
 use glam::DVec3;
 
 /// Why a height field could not be built.
@@ -102,8 +102,9 @@ impl HeightField {
         if !(u >= 0.0 && v >= 0.0 && u <= (self.nx - 1) as f64 && v <= (self.nz - 1) as f64) {
             return None;
         }
-        let ix = (u.floor() as usize).min(self.nx - 2);
-        let iz = (v.floor() as usize).min(self.nz - 2);
+        // u, v >= 0 (checked above): the floor is the truncation.
+        let ix = (u as usize).min(self.nx - 2);
+        let iz = (v as usize).min(self.nz - 2);
         let (fu, fv) = (u - ix as f64, v - iz as f64);
         let [upper_x, upper_z] = self.cell_triangles(ix, iz);
         Some(if fu >= fv { upper_x } else { upper_z })
@@ -132,7 +133,7 @@ impl HeightField {
         if !bounds.overlaps(&self.bounds) {
             return;
         }
-        let cell = |v: f64, o: f64, c: f64, n: usize| (((v - o) / c).floor().max(0.0) as usize).min(n - 2);
+        let cell = |v: f64, o: f64, c: f64, n: usize| (floor_i64((v - o) / c).max(0) as usize).min(n - 2);
         let x0 = cell(bounds.min.x, self.origin.x, self.cell_x, self.nx);
         let x1 = cell(bounds.max.x, self.origin.x, self.cell_x, self.nx);
         let z0 = cell(bounds.min.z, self.origin.z, self.cell_z, self.nz);

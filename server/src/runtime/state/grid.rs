@@ -1,6 +1,7 @@
 //! The area grid: the bodies filed by cell, so a client's area is a few rows of cells.
 
 use glam::DVec3;
+use impact_core::geometry::floor_i64;
 
 /// A body filed in a grid cell: its bounds beside its index, so a search reads cells in order.
 #[derive(Clone, Copy, Debug)]
@@ -28,8 +29,8 @@ const MAX_CELLS: i64 = 1 << 20;
 
 impl AreaGrid {
     pub(super) fn cell_of(&self, p: DVec3) -> [i64; 3] {
-        let q = ((p - self.origin) / self.size).floor();
-        [q.x as i64, q.y as i64, q.z as i64]
+        let q = (p - self.origin) / self.size;
+        [floor_i64(q.x), floor_i64(q.y), floor_i64(q.z)]
     }
 
     pub(super) fn index(&self, c: [i64; 3]) -> usize {
