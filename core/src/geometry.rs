@@ -141,15 +141,17 @@ impl Aabb {
         Aabb { min: self.min.min(other.min), max: self.max.max(other.max) }
     }
 
-    /// Closed-interval overlap on all three axes.
+    /// Closed-interval overlap on all three axes. All six comparisons are made (`&`, not `&&`):
+    /// a broadphase asks this of neighbours that miss on any axis at random, and six compares
+    /// cost less than the branch mispredictions of stopping at the first miss.
     #[inline]
     pub fn overlaps(&self, other: &Aabb) -> bool {
-        self.min.x <= other.max.x
-            && other.min.x <= self.max.x
-            && self.min.y <= other.max.y
-            && other.min.y <= self.max.y
-            && self.min.z <= other.max.z
-            && other.min.z <= self.max.z
+        (self.min.x <= other.max.x)
+            & (other.min.x <= self.max.x)
+            & (self.min.y <= other.max.y)
+            & (other.min.y <= self.max.y)
+            & (self.min.z <= other.max.z)
+            & (other.min.z <= self.max.z)
     }
 
     /// Grown by `margin` on every side.
