@@ -251,26 +251,39 @@ fn bad_inputs_are_rejected_with_reasons_and_others_are_still_served() {
     assert!(summary.inputs_rejected.get("malformed").copied().unwrap_or(0) >= 1, "{summary}");
 }
 
+/// Two clients leave a moment apart: each avatar goes once its own grace ends (the server
+/// looks for ended graces only from the earliest one due, so the later one must still be found).
 #[test]
 fn a_client_that_leaves_loses_its_avatar() {
     let (server, ep) = server(arena(), |o| o.grace_ticks = 16);
     let s = client(&ep);
     let world = WorldId::new("arena").unwrap();
-    let me = ClientId(31);
-    let ack = Inbox::new(&s, impact_protocol::keys::CLIENT_ACK.key(&world, Some(me)));
-    let token = join(&s, &world, me);
-    let (avatar, _) = welcome(&ack);
-    let has_avatar = |s: &zenoh::Session| match query(s, impact_protocol::keys::QUERY_STATE.key(&world, None), "") {
-        Some(ServerMessage::Snapshot(snap)) => snap.bodies.iter().any(|b| b.entity == avatar),
-        other => panic!("state query: {other:?}"),
-    };
-    assert!(has_avatar(&s));
-    drop(token);
-    // Grace of 16 ticks (250 ms), then it goes.
+    let mut players = Vec::new();
+    for me in [ClientId(31), ClientId(32)] {
+        let ack = Inbox::new(&s, impact_protocol::keys::CLIENT_ACK.key(&world, Some(me)));
+        let token = join(&s, &world, me);
+        let (avatar, _) = welcome(&ack);
+        players.push((avatar, token));
+    }
+    let has_avatar =
+        |s: &zenoh::Session, avatar: EntityId| match query(s, impact_protocol::keys::QUERY_STATE.key(&world, None), "")
+        {
+            Some(ServerMessage::Snapshot(snap)) => snap.bodies.iter().any(|b| b.entity == avatar),
+            other => panic!("state query: {other:?}"),
+        };
+    let (second, second_token) = players.pop().unwrap();
+    let (first, first_token) = players.pop().unwrap();
+    assert!(has_avatar(&s, first) && has_avatar(&s, second));
+    drop(first_token);
+    // Half the grace (16 ticks, 250 ms) later, the second leaves too.
+    std::thread::sleep(Duration::from_millis(125));
+    drop(second_token);
     let end = Instant::now() + Duration::from_secs(5);
-    while has_avatar(&s) {
-        assert!(Instant::now() < end, "the avatar outlived its client");
-        std::thread::sleep(Duration::from_millis(100));
+    for avatar in [first, second] {
+        while has_avatar(&s, avatar) {
+            assert!(Instant::now() < end, "avatar {avatar} outlived its client");
+            std::thread::sleep(Duration::from_millis(50));
+        }
     }
     drop(server);
 }

@@ -544,9 +544,11 @@ impl TickLoop {
                     self.join(client);
                 }
                 (false, _) => {
+                    let at = now.0 + self.opts.grace_ticks;
                     if let Some(s) = self.clients.get_mut(&client) {
-                        s.leave_at = Some(now.0 + self.opts.grace_ticks);
+                        s.leave_at = Some(at);
                     }
+                    self.note_leave(at);
                 }
             }
         }

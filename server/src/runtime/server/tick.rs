@@ -42,6 +42,9 @@ pub(super) struct TickLoop {
     pub(super) routed: bool,
     /// When the router link was last looked at.
     pub(super) link_checked: Option<Instant>,
+    /// No absent client's grace ends before this tick ([`TickLoop::note_leave`]): until then
+    /// [`TickLoop::presence`] does not look through every client for one whose grace ended.
+    pub(super) leave_due: Option<u32>,
     pub(super) summary: Summary,
     /// This second's tick durations, ms (the stats message carries them).
     pub(super) tick_times: Vec<f64>,
@@ -141,6 +144,7 @@ impl TickLoop {
             cut_off: false,
             routed: false,
             link_checked: None,
+            leave_due: None,
         }
     }
 
@@ -498,21 +502,26 @@ impl TickLoop {
             match c {
                 Control::Join(client) => self.join(client),
                 Control::Leave(client) => {
+                    let at = now.0 + self.opts.grace_ticks;
                     if let Some(s) = self.clients.get_mut(&client) {
                         s.present = false;
-                        s.leave_at = Some(now.0 + self.opts.grace_ticks);
+                        s.leave_at = Some(at);
                     }
+                    self.note_leave(at);
                 }
             }
         }
-        let leaving: Vec<ClientId> = self
-            .clients
-            .iter()
-            .filter(|(_, s)| !s.present && s.leave_at.is_some_and(|t| t <= now.0))
-            .map(|(c, _)| *c)
-            .collect();
-        if self.primary.is_none() || self.cut_off {
+        if self.leave_due.is_none_or(|t| t > now.0) || self.primary.is_none() || self.cut_off {
             return;
+        }
+        let mut leaving = Vec::new();
+        self.leave_due = None;
+        for (c, s) in self.clients.iter().filter(|(_, s)| !s.present) {
+            match s.leave_at {
+                Some(t) if t <= now.0 => leaving.push(*c),
+                Some(t) => self.leave_due = Some(self.leave_due.map_or(t, |d| d.min(t))),
+                None => {}
+            }
         }
         for c in leaving {
             self.session.forget_client(c);
@@ -522,6 +531,12 @@ impl TickLoop {
                 }
             }
         }
+    }
+
+    /// An absent client's grace now ends at `at`: [`TickLoop::presence`] looks for it then. Every
+    /// `leave_at` set to a tick calls this.
+    pub(super) fn note_leave(&mut self, at: u32) {
+        self.leave_due = Some(self.leave_due.map_or(at, |d| d.min(at)));
     }
 
     /// [`TickLoop::own_link`], four times a second; a standby watches it while it follows, so
@@ -550,6 +565,7 @@ impl TickLoop {
             for s in self.clients.values_mut().filter(|s| !s.present && s.leave_at.is_some()) {
                 s.leave_at = Some(back);
             }
+            self.note_leave(back);
         }
         self.cut_off = !up;
     }
@@ -605,6 +621,7 @@ impl TickLoop {
                 }
                 let state = self.new_client(client, false, Some(now.0 + self.opts.grace_ticks), encoding);
                 self.clients.insert(client, state);
+                self.note_leave(now.0 + self.opts.grace_ticks);
             }
             let state = self.clients.get_mut(&client).expect("inserted above");
             let ack_key = state.ack_key.clone();
