@@ -437,6 +437,8 @@ impl Shape {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
     /// The floor without `floor` agrees with `floor` everywhere: around integers, at the ends of
     /// the i64 range and past them, for NaN and the infinities.
     #[test]
@@ -483,8 +485,6 @@ mod tests {
             }
         }
     }
-
-    use super::*;
 
     /// `to_spec` of `from_spec` is the spec again, for every kind of shape: the one conversion
     /// each way loses nothing (checkpoints rely on it for bit-identical restores).

@@ -60,7 +60,7 @@ impl Plan {
         // move: a speed limit bounds inputs, not what gravity, bounces and spawns give a body,
         // and the plan is made once, before the avatars, spawns and projectiles that join
         // later. Off, a pair faster than its extents could pass through between two ticks.
-        let ccd_sampling = cfg.classes.props.iter().any(|p| !p.is_static) || !b.is_empty();
+        let ccd_sampling = cfg.classes.props.iter().any(|p| !p.is_static);
         // Grid for bodies of similar size; sweep and prune when sizes vary a lot (the grid's cell
         // is the largest box, which would put many small bodies in one cell), and for a world
         // that starts with few: the plan is made once, and players' avatars and spawns join

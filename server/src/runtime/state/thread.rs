@@ -49,7 +49,8 @@ impl Listener {
 ///
 /// Streams nobody subscribes to are not built (a matching listener per publisher: a client that
 /// subscribes is seen as soon as Zenoh knows, and starts with a full frame), so players that never
-/// look at the state cost nothing here. It builds and publishes between the world's ticks (`gate`), the tick first.
+/// look at the state cost nothing here. It builds and publishes between the world's ticks
+/// (`gate`), the tick first.
 #[allow(clippy::too_many_arguments)]
 pub fn run(
     session: zenoh::Session,
